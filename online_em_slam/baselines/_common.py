@@ -1,0 +1,268 @@
+"""Input handling shared by the baseline estimators (EKF-SLAM, FastSLAM 2.0).
+
+Mirrors the input contract of :class:`online_em_slam.core.slam.OnlineEMSlam`
+(docs/API.md): stamps in seconds, zero-order hold of controls, odometry poses
+turned into body-frame increments, bad inputs dropped and counted in
+``drops`` instead of raising.  Subclasses implement the estimator itself:
+``_predict(control, dt)`` for one integration sub-step and
+``_update(observations, R, report)`` for one scan.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+
+import numpy as np
+
+from ..core.angles import wrap_angle
+from ..core.config import SlamConfig
+from ..core.observation import noise_covariance
+from ..core.types import Observations, StepReport
+
+
+def odometry_increment(previous: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """Relative pose (dx, dy, dphi) of ``current`` expressed in the frame of ``previous``:
+    (dx, dy) = R(-phi_prev) (p_cur - p_prev), dphi = wrap(phi_cur - phi_prev)."""
+    c, s = math.cos(previous[2]), math.sin(previous[2])
+    d = current[:2] - previous[:2]
+    return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], wrap_angle(current[2] - previous[2])])
+
+
+def prediction_substeps(dt: float, max_step: float) -> tuple[int, float]:
+    """Split dt into n equal sub-steps no longer than ``max_step`` (Euler integration accuracy)."""
+    n = max(1, int(math.ceil(dt / max_step - 1e-9)))
+    return n, dt / n
+
+
+class BaselineFilter:
+    """Stamps, zero-order hold and input validation; see the module docstring."""
+
+    def __init__(self, config: SlamConfig, initial_pose=(0.0, 0.0, 0.0), stamp: float | None = None):
+        self.config = config.validate()
+        self.drops: Counter = Counter()
+        self._initial_stamp = None if stamp is None else float(stamp)
+        self.reset(initial_pose)
+
+    # -- to implement ------------------------------------------------------------
+    def _reset_state(self, initial_pose: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def _predict(self, control: np.ndarray, dt: float) -> None:
+        raise NotImplementedError
+
+    def _update(self, observations: Observations, R: np.ndarray, report: StepReport) -> None:
+        raise NotImplementedError
+
+    # -- public API ----------------------------------------------------------------
+    def reset(self, initial_pose=None) -> None:
+        """Forget the map and restart at ``initial_pose`` (default: the constructor's)."""
+        if initial_pose is not None:
+            self._initial_pose = np.asarray(initial_pose, dtype=float).reshape(3).copy()
+        self.last_stamp = self._initial_stamp
+        self._held_control: np.ndarray | None = None
+        self._last_odometry: np.ndarray | None = None
+        self._scan_count = 0
+        self._reset_state(self._initial_pose.copy())
+
+    def add_control(self, stamp: float, control) -> None:
+        """Propagate to ``stamp`` with the held control, then hold ``control`` (zero-order hold)."""
+        u = np.asarray(control, dtype=float).reshape(-1)
+        if self.config.motion.model == "odometry":
+            self.drops["wrong_input"] += 1
+            return
+        if u.shape[0] < 2 or not np.all(np.isfinite(u)) or not math.isfinite(stamp):
+            self.drops["non_finite"] += 1
+            return
+        if not self._advance(float(stamp)):
+            return
+        self._held_control = u[:2].copy()
+
+    def add_odometry(self, stamp: float, odom_pose) -> None:
+        """Apply the body-frame increment from the previous odometry pose (motion.model == "odometry")."""
+        pose = np.asarray(odom_pose, dtype=float).reshape(-1)
+        if self.config.motion.model != "odometry":
+            self.drops["wrong_input"] += 1
+            return
+        if pose.shape[0] < 3 or not np.all(np.isfinite(pose[:3])) or not math.isfinite(stamp):
+            self.drops["non_finite"] += 1
+            return
+        stamp = float(stamp)
+        if self.last_stamp is not None and stamp < self.last_stamp:
+            self.drops["out_of_order"] += 1
+            return
+        dt = 0.0 if self.last_stamp is None else stamp - self.last_stamp
+        if self._last_odometry is not None:
+            self._predict(odometry_increment(self._last_odometry, pose[:3]), max(dt, 1e-6))
+        self._last_odometry = pose[:3].copy()
+        self.last_stamp = stamp
+
+    def add_observations(self, stamp: float, observations: Observations) -> StepReport:
+        """Propagate to ``stamp``, then update with the scan; returns what was done."""
+        start = time.perf_counter()
+        report = StepReport(n_observations=len(observations), dropped={})
+        if not math.isfinite(stamp) or not self._advance(float(stamp), report):
+            report.duration = time.perf_counter() - start
+            return report
+        sensor = self.config.sensor
+        good = np.isfinite(observations.ranges) & np.isfinite(observations.bearings)
+        self._count(report, "non_finite", int(np.sum(~good)))
+        in_range = good & (observations.ranges >= sensor.min_range) & (observations.ranges <= sensor.max_range)
+        self._count(report, "out_of_range", int(np.sum(good & ~in_range)))
+        kept = observations.subset(in_range)
+        kept.bearings = wrap_angle(kept.bearings)
+        R = noise_covariance(self.config.noise, kept.ranges, kept.range_std, kept.bearing_std)
+        self._scan_count += 1
+        self._update(kept, R, report)
+        report.duration = time.perf_counter() - start
+        return report
+
+    # -- helpers ---------------------------------------------------------------------
+    def _count(self, report: StepReport | None, reason: str, n: int = 1) -> None:
+        if n <= 0:
+            return
+        self.drops[reason] += n
+        if report is not None:
+            report.dropped[reason] = report.dropped.get(reason, 0) + n
+
+    def _advance(self, stamp: float, report: StepReport | None = None) -> bool:
+        """Propagate from ``last_stamp`` to ``stamp`` with the held control.
+
+        False (and counted) when the stamp goes backwards.  Gaps longer than
+        ``max_prediction_interval`` are clipped to it (counted), because
+        extrapolating a held control over a long gap is not credible.
+        """
+        if self.last_stamp is None:
+            self.last_stamp = stamp
+            return True
+        dt = stamp - self.last_stamp
+        if dt < 0:
+            self._count(report, "out_of_order")
+            return False
+        motion = self.config.motion
+        if dt > motion.max_prediction_interval:
+            self._count(report, "large_time_step")
+            dt = motion.max_prediction_interval
+        if dt > 0 and self._held_control is not None and motion.model != "odometry":
+            n, h = prediction_substeps(dt, motion.max_step)
+            for _ in range(n):
+                self._predict(self._held_control, h)
+        self.last_stamp = stamp
+        return True
+
+
+def inverse_observation_jacobians(poses: np.ndarray, observations: np.ndarray, sensor
+                                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobians of the landmark initialisation g(X, z) = p_s + r (cos a, sin a), a = phi_s + b.
+
+    G_x = dg/dX (..., 2, 3) includes the sensor lever arm; G_z = dg/dz (..., 2, 2).
+    Used to augment covariances with a new landmark: Sigma_new = G_x P G_x^T + G_z R G_z^T.
+    """
+    c, s = np.cos(poses[..., 2]), np.sin(poses[..., 2])
+    angle = poses[..., 2] + sensor.offset_yaw + observations[..., 1]
+    ca, sa = np.cos(angle), np.sin(angle)
+    r = observations[..., 0]
+    shape = np.broadcast_shapes(c.shape, r.shape)
+    Gx = np.zeros(shape + (2, 3))
+    Gx[..., 0, 0] = 1.0
+    Gx[..., 1, 1] = 1.0
+    Gx[..., 0, 2] = -s * sensor.offset_x - c * sensor.offset_y - r * sa
+    Gx[..., 1, 2] = c * sensor.offset_x - s * sensor.offset_y + r * ca
+    Gz = np.empty(shape + (2, 2))
+    Gz[..., 0, 0], Gz[..., 0, 1] = ca, -r * sa
+    Gz[..., 1, 0], Gz[..., 1, 1] = sa, r * ca
+    return Gx, Gz
+
+
+class LandmarkBook:
+    """Identity bookkeeping of the map slots shared by all particles / the EKF state.
+
+    ``ids`` are the external ids (given ids, or fresh ones for landmarks created
+    from unknown-id observations); ``tentative`` marks created-from-unknown
+    landmarks that may be pruned if they are not re-observed.
+    """
+
+    def __init__(self) -> None:
+        self.ids = np.zeros(0, dtype=np.int64)
+        self.n_obs = np.zeros(0, dtype=np.int64)
+        self.created = np.zeros(0, dtype=np.int64)
+        self.prunable = np.zeros(0, dtype=bool)
+        self.next_id = 0
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+    def slots(self, ids: np.ndarray) -> np.ndarray:
+        """Slot of each id, -1 when unknown to the map."""
+        lookup = {int(i): k for k, i in enumerate(self.ids)}
+        return np.array([lookup.get(int(i), -1) for i in ids], dtype=np.int64)
+
+    def add(self, landmark_id: int | None, scan: int) -> int:
+        """Register a landmark (fresh id when None); returns its id."""
+        prunable = landmark_id is None
+        if landmark_id is None:
+            landmark_id = self.next_id
+        self.next_id = max(self.next_id, int(landmark_id) + 1)
+        self.ids = np.append(self.ids, np.int64(landmark_id))
+        self.n_obs = np.append(self.n_obs, 1)
+        self.created = np.append(self.created, scan)
+        self.prunable = np.append(self.prunable, prunable)
+        return int(landmark_id)
+
+    def stale(self, scan: int, confirm: int, timeout: int) -> np.ndarray:
+        """Mask of tentative landmarks (fewer than ``confirm`` observations) older than ``timeout`` scans."""
+        return self.prunable & (self.n_obs < confirm) & (scan - self.created > timeout)
+
+    def keep(self, mask: np.ndarray) -> None:
+        self.ids, self.n_obs = self.ids[mask], self.n_obs[mask]
+        self.created, self.prunable = self.created[mask], self.prunable[mask]
+
+
+def plan_associations(observations: Observations, book: LandmarkBook, predicted_fn, R: np.ndarray,
+                      gates, report: StepReport, drop) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
+    """Decide, for each observation, to update a slot, create a landmark, or drop it.
+
+    Known ids (>= 0) map to their slot or create it; unknown ids (-1) go through
+    :func:`online_em_slam.core.association.associate` with the estimator's
+    predicted measurements and innovation covariances S = S0 + R
+    (``predicted_fn()`` returns (z_hat (K, 2), S0 (K, 2, 2))).
+    Returns (update_obs, update_slots, create_obs, create_ids) where
+    create_ids holds the given id or None for a fresh one.
+    """
+    from ..core.association import AMBIGUOUS, NEW_LANDMARK, associate
+
+    ids = observations.ids
+    update_obs, update_slots, create_obs, create_ids = [], [], [], []
+    known = np.flatnonzero(ids >= 0)
+    slots = book.slots(ids[known])
+    seen_new: set[int] = set()
+    for o, k in zip(known, slots):
+        if k >= 0:
+            update_obs.append(o)
+            update_slots.append(k)
+        elif int(ids[o]) in seen_new:
+            drop(report, "duplicate_id")
+        else:
+            seen_new.add(int(ids[o]))
+            create_obs.append(o)
+            create_ids.append(int(ids[o]))
+    unknown = np.flatnonzero(ids < 0)
+    if unknown.size:
+        z = np.stack([observations.ranges[unknown], observations.bearings[unknown]], axis=1)
+        if len(book):
+            z_hat, S0 = predicted_fn()
+            S = S0[None, :, :, :] + R[unknown][:, None, :, :]
+            assignment, _ = associate(z, z_hat, S, gates)
+        else:
+            assignment = np.full(unknown.size, NEW_LANDMARK)
+        for o, a in zip(unknown, assignment):
+            if a >= 0:
+                update_obs.append(o)
+                update_slots.append(int(a))
+            elif a == NEW_LANDMARK:
+                create_obs.append(o)
+                create_ids.append(None)
+            elif a == AMBIGUOUS:
+                drop(report, "ambiguous")
+    return (np.asarray(update_obs, dtype=np.int64), np.asarray(update_slots, dtype=np.int64),
+            np.asarray(create_obs, dtype=np.int64), create_ids)

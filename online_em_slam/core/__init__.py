@@ -1,0 +1,9 @@
+"""ROS-free estimation core: particle online EM SLAM and its building blocks."""
+from .config import (AssociationConfig, EMConfig, FilterConfig, MotionConfig,
+                     ObservationNoiseConfig, SensorConfig, SlamConfig)
+from .slam import OnlineEMSlam
+from .types import LandmarkMap, Observations, PoseEstimate, StepReport
+
+__all__ = ["AssociationConfig", "EMConfig", "FilterConfig", "MotionConfig", "ObservationNoiseConfig",
+           "SensorConfig", "SlamConfig", "OnlineEMSlam", "LandmarkMap", "Observations",
+           "PoseEstimate", "StepReport"]

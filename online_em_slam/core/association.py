@@ -1,0 +1,69 @@
+"""Likelihood-based data association for observations of unknown identity.
+
+Shared by the online EM core and the baselines so that every method sees the
+same gates.  The cost of pairing observation o with landmark k is its negative
+Gaussian log-likelihood d2 + log det S (d2 the squared Mahalanobis distance of
+the innovation, S its covariance).  At most one observation per landmark per
+scan: the pairing is a linear assignment (scipy's Hungarian solver).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.stats import chi2
+
+from .config import AssociationConfig
+from .observation import innovation, mahalanobis_2d
+
+NEW_LANDMARK = -1
+AMBIGUOUS = -2
+_FORBIDDEN = 1e12
+
+
+@dataclass
+class Gates:
+    """Squared-Mahalanobis thresholds derived from the chi-square(2) probabilities."""
+
+    associate: float
+    create: float
+
+    @classmethod
+    def from_config(cls, config: AssociationConfig) -> "Gates":
+        return cls(float(chi2.ppf(config.gate_probability, 2)),
+                   float(chi2.ppf(config.new_landmark_probability, 2)))
+
+
+def associate(observations: np.ndarray, predicted: np.ndarray, innovation_cov: np.ndarray,
+              gates: Gates) -> tuple[np.ndarray, np.ndarray]:
+    """Assign each observation to a landmark, to a new landmark, or drop it.
+
+    observations   (O, 2) range, bearing
+    predicted      (O, K, 2) or (K, 2): predicted (range, bearing) of each candidate landmark
+    innovation_cov (O, K, 2, 2) or (K, 2, 2): covariance S of each innovation
+    Returns (assignment (O,), d2 (O, K)) with assignment[o] = column index k,
+    NEW_LANDMARK when o lies outside the creation gate of every landmark, or
+    AMBIGUOUS when it is inside some gate but lost the assignment or sits
+    between the two gates (dropping it avoids duplicate landmarks).
+    """
+    n_obs = observations.shape[0]
+    k = predicted.shape[-2] if predicted.ndim >= 2 else 0
+    if n_obs == 0:
+        return np.zeros(0, dtype=int), np.zeros((0, k))
+    if k == 0:
+        return np.full(n_obs, NEW_LANDMARK, dtype=int), np.zeros((n_obs, 0))
+    predicted = np.broadcast_to(predicted, (n_obs, k, 2))
+    innovation_cov = np.broadcast_to(innovation_cov, (n_obs, k, 2, 2))
+    nu = innovation(np.broadcast_to(observations[:, None, :], predicted.shape).copy(), predicted)
+    d2, logdet = mahalanobis_2d(nu, innovation_cov)
+    d2 = np.where(np.isfinite(d2), d2, np.inf)
+    cost = np.where(d2 < gates.associate, d2 + logdet, _FORBIDDEN)
+    rows, cols = linear_sum_assignment(cost)
+    assignment = np.full(n_obs, AMBIGUOUS, dtype=int)
+    ok = cost[rows, cols] < _FORBIDDEN
+    assignment[rows[ok]] = cols[ok]
+    unassigned = assignment == AMBIGUOUS
+    far = d2.min(axis=1) > gates.create
+    assignment[unassigned & far] = NEW_LANDMARK
+    return assignment, d2

@@ -1,0 +1,161 @@
+"""Vehicle motion models, vectorised over particles.
+
+Each model maps poses (N, 3) and one control to the noise-free next pose
+f(X, u), its Jacobian F = df/dX and the state-space noise covariance
+G Q G^T (G = df/dnoise).  The particle filter uses the Gaussian approximation
+of the transition
+
+    m(x, x') = N(x'; f(x, u), G Q G^T)                                    (T)
+
+compounded over the control steps between two observation times (EKF-style
+moments, F Sigma F^T + G Q G^T).  The same density (T) serves as the proposal
+and inside the backward kernel of the smoother, so sampling and smoothing are
+consistent: this is the seed's "Gaussian approximation of the prior m(x, x')".
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .config import MotionConfig
+
+
+def _noise_cov(G: np.ndarray, variances: np.ndarray) -> np.ndarray:
+    """G diag(variances) G^T for G (N, 3, k)."""
+    return np.einsum("nik,k,njk->nij", G, variances, G)
+
+
+def _control_variances(config: MotionConfig, dt: float) -> np.ndarray:
+    """Per-step control variances, scaled as continuous-time white noise.
+
+    sigma is specified for ``noise_reference_period`` seconds; per step of dt
+    the variance is sigma^2 * ref / dt so that the integrated pose variance
+    per second does not depend on the control rate.
+    """
+    scale = config.noise_reference_period / max(dt, 1e-6)
+    return np.array([config.sigma_speed ** 2, config.sigma_steering ** 2]) * scale
+
+
+def _heading_noise(config: MotionConfig, dt: float) -> float:
+    return config.sigma_heading ** 2 * dt / config.noise_reference_period
+
+
+def bicycle(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):
+    """Seed bicycle model, control u = (v, psi), wheelbase B (ALGORITHM.md section 1):
+
+    X' = X + (v dt cos(phi + psi), v dt sin(phi + psi), v dt sin(psi) / B).
+    """
+    v, psi = float(control[0]), float(control[1])
+    B = config.wheelbase
+    heading = poses[:, 2] + psi
+    c, s = np.cos(heading), np.sin(heading)
+    n = poses.shape[0]
+    mean = poses.copy()
+    mean[:, 0] += v * dt * c
+    mean[:, 1] += v * dt * s
+    mean[:, 2] += v * dt * np.sin(psi) / B
+    F = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    F[:, 0, 2] = -v * dt * s
+    F[:, 1, 2] = v * dt * c
+    G = np.zeros((n, 3, 2))
+    G[:, 0, 0], G[:, 1, 0], G[:, 2, 0] = dt * c, dt * s, dt * np.sin(psi) / B
+    G[:, 0, 1], G[:, 1, 1], G[:, 2, 1] = -v * dt * s, v * dt * c, v * dt * np.cos(psi) / B
+    Q = _noise_cov(G, _control_variances(config, dt))
+    Q[:, 2, 2] += _heading_noise(config, dt)
+    return mean, F, Q
+
+
+def acfr(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):
+    """ACFR ute (KTH datasets), pose of the rear-axle centre, control u = (v_e, alpha).
+
+    v_c = v_e / (1 - tan(alpha) H / L) converts the rear-left encoder speed to the
+    centre speed; X' = X + (v_c dt cos phi, v_c dt sin phi, v_c dt tan(alpha) / L).
+    The laser point of the dataset README's model is this pose plus the sensor
+    offset (a, b), so the observation model carries the lever arm.
+    """
+    v_e, alpha = float(control[0]), float(control[1])
+    L, H = config.wheelbase, config.encoder_offset
+    tan_a = np.tan(alpha)
+    sec2 = 1.0 + tan_a ** 2
+    denom = 1.0 - tan_a * H / L
+    k = 1.0 / denom
+    v_c = v_e * k
+    dvc_dalpha = v_e * (H / L) * sec2 / denom ** 2
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    n = poses.shape[0]
+    mean = poses.copy()
+    mean[:, 0] += v_c * dt * c
+    mean[:, 1] += v_c * dt * s
+    mean[:, 2] += v_c * dt * tan_a / L
+    F = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    F[:, 0, 2] = -v_c * dt * s
+    F[:, 1, 2] = v_c * dt * c
+    G = np.zeros((n, 3, 2))
+    G[:, 0, 0], G[:, 1, 0], G[:, 2, 0] = k * dt * c, k * dt * s, k * dt * tan_a / L
+    G[:, 0, 1], G[:, 1, 1] = dvc_dalpha * dt * c, dvc_dalpha * dt * s
+    G[:, 2, 1] = dt * (dvc_dalpha * tan_a + v_c * sec2) / L
+    Q = _noise_cov(G, _control_variances(config, dt))
+    Q[:, 2, 2] += _heading_noise(config, dt)
+    return mean, F, Q
+
+
+def unicycle(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):
+    """Control u = (v, omega): X' = X + (v dt cos(phi + omega dt / 2), v dt sin(.), omega dt)."""
+    v, omega = float(control[0]), float(control[1])
+    heading = poses[:, 2] + 0.5 * omega * dt
+    c, s = np.cos(heading), np.sin(heading)
+    n = poses.shape[0]
+    mean = poses.copy()
+    mean[:, 0] += v * dt * c
+    mean[:, 1] += v * dt * s
+    mean[:, 2] += omega * dt
+    F = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    F[:, 0, 2] = -v * dt * s
+    F[:, 1, 2] = v * dt * c
+    G = np.zeros((n, 3, 2))
+    G[:, 0, 0], G[:, 1, 0] = dt * c, dt * s
+    G[:, 0, 1], G[:, 1, 1], G[:, 2, 1] = -0.5 * v * dt * dt * s, 0.5 * v * dt * dt * c, dt
+    Q = _noise_cov(G, _control_variances(config, dt))
+    Q[:, 2, 2] += _heading_noise(config, dt)
+    return mean, F, Q
+
+
+def odometry(config: MotionConfig, poses: np.ndarray, increment: np.ndarray, dt: float):
+    """Odometry increment u = (dx, dy, dphi) in the previous body frame:
+
+    X' = X + (R(phi) (dx, dy), dphi), noise in the body frame with standard
+    deviations growing with the distance and angle travelled.
+    """
+    dx, dy, dphi = (float(v) for v in increment[:3])
+    dist = float(np.hypot(dx, dy))
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    n = poses.shape[0]
+    mean = poses.copy()
+    mean[:, 0] += c * dx - s * dy
+    mean[:, 1] += s * dx + c * dy
+    mean[:, 2] += dphi
+    F = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    F[:, 0, 2] = -s * dx - c * dy
+    F[:, 1, 2] = c * dx - s * dy
+    moved = dist > 0 or dphi != 0
+    sig_t = (config.odometry_translation_std if moved else 0.0) + config.odometry_translation_per_meter * dist
+    sig_r = ((config.odometry_rotation_std if moved else 0.0)
+             + config.odometry_rotation_per_radian * abs(dphi)
+             + config.odometry_rotation_per_meter * dist)
+    Q = np.zeros((n, 3, 3))
+    # Isotropic translation noise is invariant under the body-to-world rotation.
+    Q[:, 0, 0] = Q[:, 1, 1] = sig_t ** 2
+    Q[:, 2, 2] = sig_r ** 2 + _heading_noise(config, dt)
+    return mean, F, Q
+
+
+MODELS = {"bicycle": bicycle, "acfr": acfr, "unicycle": unicycle, "odometry": odometry}
+
+
+def propagate(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):
+    """Dispatch to the configured model: returns (f(X, u), F, G Q G^T)."""
+    return MODELS[config.model](config, np.asarray(poses, dtype=float), np.asarray(control, dtype=float), dt)
+
+
+def step_jitter(config: MotionConfig) -> np.ndarray:
+    """Diagonal covariance added once per filter step so that (T) is never degenerate."""
+    return np.diag([config.position_jitter ** 2, config.position_jitter ** 2, config.heading_jitter ** 2])

@@ -1,0 +1,179 @@
+"""Range-bearing observation model, its Jacobians and noise laws.
+
+All functions broadcast over leading axes, so one call serves every particle and
+every landmark.  Notation of ALGORITHM.md section 1: pose X = (x, y, phi),
+landmark theta_k in R^2, observation y = h(X, theta_k) + W with
+h = (|theta_k - p|, atan2(dy, dx) - phi), p the sensor position.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .angles import wrap_angle
+from .config import ObservationNoiseConfig, SensorConfig
+
+_LOG_2PI = math.log(2.0 * math.pi)
+# Below this distance (m) the bearing is undefined; clamp to keep H finite.
+MIN_DISTANCE = 1e-3
+
+
+def sensor_poses(poses: np.ndarray, sensor: SensorConfig) -> np.ndarray:
+    """Pose of the sensor in the world for base poses (..., 3)."""
+    c, s = np.cos(poses[..., 2]), np.sin(poses[..., 2])
+    out = np.empty_like(poses, dtype=float)
+    out[..., 0] = poses[..., 0] + c * sensor.offset_x - s * sensor.offset_y
+    out[..., 1] = poses[..., 1] + s * sensor.offset_x + c * sensor.offset_y
+    out[..., 2] = poses[..., 2] + sensor.offset_yaw
+    return out
+
+
+def predict_observation(sensor_pose: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
+    """h(X, theta): (range, bearing) of landmarks (..., 2) seen from sensor poses (..., 3).
+
+    Bearing is wrapped to (-pi, pi].  Shapes broadcast: (N,1,3) with (1,K,2) gives (N,K,2).
+    """
+    dx = landmarks[..., 0] - sensor_pose[..., 0]
+    dy = landmarks[..., 1] - sensor_pose[..., 1]
+    out = np.empty(np.broadcast(dx, dy).shape + (2,))
+    out[..., 0] = np.hypot(dx, dy)
+    out[..., 1] = wrap_angle(np.arctan2(dy, dx) - sensor_pose[..., 2])
+    return out
+
+
+def landmark_jacobian(sensor_pose: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
+    """H = dh/dtheta = [[dx/r, dy/r], [-dy/q, dx/q]] with q = r^2 (ALGORITHM.md section 1).
+
+    The distance is clamped at ``MIN_DISTANCE`` so a landmark on top of the
+    sensor gives a large but finite Jacobian instead of NaN.
+    """
+    dx = landmarks[..., 0] - sensor_pose[..., 0]
+    dy = landmarks[..., 1] - sensor_pose[..., 1]
+    q = np.maximum(dx * dx + dy * dy, MIN_DISTANCE ** 2)
+    r = np.sqrt(q)
+    H = np.empty(np.broadcast(dx, dy).shape + (2, 2))
+    H[..., 0, 0] = dx / r
+    H[..., 0, 1] = dy / r
+    H[..., 1, 0] = -dy / q
+    H[..., 1, 1] = dx / q
+    return H
+
+
+def pose_jacobian(poses: np.ndarray, landmarks: np.ndarray, sensor: SensorConfig) -> np.ndarray:
+    """dh/dX (..., 2, 3) for base poses, including the lever arm of the sensor offset."""
+    sp = sensor_poses(poses, sensor)
+    H_l = landmark_jacobian(sp, landmarks)
+    c, s = np.cos(poses[..., 2]), np.sin(poses[..., 2])
+    # d(sensor position)/d(phi) for the lever arm (offset_x, offset_y).
+    dpx = -s * sensor.offset_x - c * sensor.offset_y
+    dpy = c * sensor.offset_x - s * sensor.offset_y
+    shape = np.broadcast_shapes(H_l.shape[:-2], dpx.shape)
+    J = np.empty(shape + (2, 3))
+    J[..., :, 0] = -H_l[..., :, 0]
+    J[..., :, 1] = -H_l[..., :, 1]
+    J[..., :, 2] = -(H_l[..., :, 0] * dpx[..., None] + H_l[..., :, 1] * dpy[..., None])
+    J[..., 1, 2] -= 1.0
+    return J
+
+
+def inverse_observation(sensor_pose: np.ndarray, observation: np.ndarray) -> np.ndarray:
+    """Landmark position that would produce ``observation`` (range, bearing) from the sensor pose."""
+    angle = sensor_pose[..., 2] + observation[..., 1]
+    out = np.empty(np.broadcast_shapes(sensor_pose.shape[:-1], observation.shape[:-1]) + (2,))
+    out[..., 0] = sensor_pose[..., 0] + observation[..., 0] * np.cos(angle)
+    out[..., 1] = sensor_pose[..., 1] + observation[..., 0] * np.sin(angle)
+    return out
+
+
+def innovation(observation: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """y - h with the bearing difference wrapped to (-pi, pi]."""
+    nu = observation - predicted
+    nu[..., 1] = wrap_angle(nu[..., 1])
+    return nu
+
+
+def noise_covariance(noise: ObservationNoiseConfig, ranges: np.ndarray,
+                     range_std: np.ndarray | None = None,
+                     bearing_std: np.ndarray | None = None) -> np.ndarray:
+    """R (..., 2, 2) per observation.
+
+    Default R = [[sigma_r^2, rho], [rho, sigma_b^2]] with sigma_r growing by
+    ``range_growth`` per metre of range; per-observation standard deviations,
+    when given (finite and positive), replace the configured ones and drop rho.
+    """
+    ranges = np.asarray(ranges, dtype=float)
+    sr = noise.sigma_range + noise.range_growth * np.maximum(ranges, 0.0)
+    sb = np.full_like(sr, noise.sigma_bearing)
+    rho = np.full_like(sr, noise.rho) * (sr / noise.sigma_range)
+    if range_std is not None:
+        good = np.isfinite(range_std) & (np.asarray(range_std) > 0)
+        sr = np.where(good, range_std, sr)
+        rho = np.where(good, 0.0, rho)
+    if bearing_std is not None:
+        good = np.isfinite(bearing_std) & (np.asarray(bearing_std) > 0)
+        sb = np.where(good, bearing_std, sb)
+        rho = np.where(good, 0.0, rho)
+    R = np.empty(sr.shape + (2, 2))
+    R[..., 0, 0] = sr * sr
+    R[..., 1, 1] = sb * sb
+    R[..., 0, 1] = R[..., 1, 0] = rho
+    return R
+
+
+def inv_det_2x2(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form inverse and determinant of 2x2 matrices (..., 2, 2)."""
+    det = S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]
+    safe = np.where(np.abs(det) > 1e-300, det, 1e-300)
+    inv = np.empty_like(S)
+    inv[..., 0, 0] = S[..., 1, 1] / safe
+    inv[..., 1, 1] = S[..., 0, 0] / safe
+    inv[..., 0, 1] = -S[..., 0, 1] / safe
+    inv[..., 1, 0] = -S[..., 1, 0] / safe
+    return inv, det
+
+
+def mahalanobis_2d(nu: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """nu^T S^-1 nu and log det S for 2-vectors."""
+    inv, det = inv_det_2x2(S)
+    d2 = (nu[..., 0] * (inv[..., 0, 0] * nu[..., 0] + inv[..., 0, 1] * nu[..., 1])
+          + nu[..., 1] * (inv[..., 1, 0] * nu[..., 0] + inv[..., 1, 1] * nu[..., 1]))
+    return d2, np.log(np.maximum(det, 1e-300))
+
+
+def gaussian_loglik(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """log N(nu; 0, S) for 2-vectors."""
+    d2, logdet = mahalanobis_2d(nu, S)
+    return -0.5 * (d2 + logdet) - _LOG_2PI
+
+
+def noise_loglik(noise: ObservationNoiseConfig, nu: np.ndarray, S: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Log-likelihood of innovations and each mixture component's responsibility.
+
+    Gaussian: log N(nu; 0, S), responsibilities all 1 (one component).
+    Mixture:  log sum_c weight_c N(nu; 0, scale_c S); responsibilities are the
+    posterior component probabilities, the E-step of the latent component.
+    Returns (loglik (...), responsibilities (..., C)).
+    """
+    if noise.model == "gaussian":
+        return gaussian_loglik(nu, S), np.ones(nu.shape[:-1] + (1,))
+    d2, logdet = mahalanobis_2d(nu, S)
+    scales = np.asarray(noise.mixture_scales, dtype=float)
+    log_weights = np.log(np.maximum(np.asarray(noise.mixture_weights, dtype=float), 1e-300))
+    comp = (log_weights - _LOG_2PI - 0.5 * (d2[..., None] / scales + logdet[..., None]
+                                             + 2.0 * np.log(scales)))
+    top = comp.max(axis=-1, keepdims=True)
+    total = top[..., 0] + np.log(np.exp(comp - top).sum(axis=-1))
+    return total, np.exp(comp - total[..., None])
+
+
+def component_precision_weight(noise: ObservationNoiseConfig, responsibilities: np.ndarray) -> np.ndarray:
+    """sum_c r_c / scale_c: the factor multiplying R^-1 in the expected quadratic form.
+
+    With the mixture, the complete-data log-likelihood is quadratic given the
+    component; its expectation weights R_c^-1 = R^-1 / scale_c by r_c.
+    """
+    if noise.model == "gaussian":
+        return responsibilities[..., 0]
+    return responsibilities @ (1.0 / np.asarray(noise.mixture_scales, dtype=float))

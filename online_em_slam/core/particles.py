@@ -1,0 +1,86 @@
+"""Particle-filter primitives: weights, resampling, moments, Gaussian draws."""
+from __future__ import annotations
+
+import numpy as np
+
+from .angles import circular_mean, wrap_angle
+
+
+def normalize_log_weights(log_weights: np.ndarray) -> tuple[np.ndarray, float]:
+    """Normalised weights and the log of the mean unnormalised weight.
+
+    Works in the log domain (subtract the max) so that likelihoods that all
+    underflow still give proper weights.  Non-finite log-weights (NaN, -inf)
+    get zero weight; if none is finite the weights fall back to uniform,
+    which is the least-informative recovery from a degenerate update.
+    """
+    lw = np.where(np.isfinite(log_weights), log_weights, -np.inf)
+    top = lw.max()
+    if not np.isfinite(top):
+        n = lw.shape[0]
+        return np.full(n, 1.0 / n), -np.inf
+    w = np.exp(lw - top)
+    total = w.sum()
+    return w / total, float(top + np.log(total / lw.shape[0]))
+
+
+def effective_sample_size(weights: np.ndarray) -> float:
+    """ESS = 1 / sum w_i^2 for normalised weights."""
+    return float(1.0 / np.sum(weights * weights))
+
+
+def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Ancestor indices by systematic resampling: one uniform, N stratified points.
+
+    Unbiased: each index i is drawn N w_i times in expectation.
+    """
+    n = weights.shape[0]
+    positions = (rng.random() + np.arange(n)) / n
+    cumulative = np.cumsum(weights)
+    cumulative[-1] = 1.0
+    return np.minimum(np.searchsorted(cumulative, positions, side="right"), n - 1)
+
+
+def weighted_pose_mean(poses: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Weighted mean pose, circular mean for the yaw."""
+    mean = np.empty(3)
+    mean[:2] = weights @ poses[:, :2]
+    mean[2] = circular_mean(poses[:, 2], weights)
+    return mean
+
+
+def weighted_pose_covariance(poses: np.ndarray, weights: np.ndarray, mean: np.ndarray,
+                             spread: np.ndarray | None = None) -> np.ndarray:
+    """Weighted covariance of poses around ``mean`` (yaw deviations wrapped).
+
+    ``spread`` (N, 3, 3), when given, is each particle's own covariance (its
+    predicted motion uncertainty) and is added as the mixture's within term.
+    """
+    dev = poses - mean
+    dev[:, 2] = wrap_angle(dev[:, 2])
+    cov = (dev * weights[:, None]).T @ dev
+    if spread is not None:
+        cov = cov + np.tensordot(weights, spread, axes=1)
+    return 0.5 * (cov + cov.T)
+
+
+def sample_gaussians(means: np.ndarray, covariances: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One draw from N(means[i], covariances[i]) per row, yaw wrapped."""
+    chol = np.linalg.cholesky(covariances)
+    draws = means + np.einsum("nij,nj->ni", chol, rng.standard_normal(means.shape))
+    draws[:, 2] = wrap_angle(draws[:, 2])
+    return draws
+
+
+def gaussian_transition_logpdf(targets: np.ndarray, means: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """log m(x_j, x'_i) = log N(targets[i]; means[j], covariances[j]) for all pairs: (N_i, N_j).
+
+    This is the (T) density of motion.py evaluated on every (i, j) pair, the
+    O(N^2) part of the forward-only smoother.
+    """
+    inv = np.linalg.inv(covariances)
+    _, logdet = np.linalg.slogdet(covariances)
+    diff = targets[:, None, :] - means[None, :, :]
+    diff[..., 2] = wrap_angle(diff[..., 2])
+    quad = np.einsum("ijk,jkl,ijl->ij", diff, inv, diff)
+    return -0.5 * (quad + logdet[None, :]) - 1.5 * np.log(2.0 * np.pi)

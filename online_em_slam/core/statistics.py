@@ -1,0 +1,147 @@
+"""E-step sufficient statistics, their smoothing over particles, and the M-step.
+
+Per observation of landmark k at pose X (ALGORITHM.md section 1), with H the
+Jacobian of h in theta at the current estimate theta_bar and P = R^-1 (the
+mixture weighs R_c^-1 by the responsibilities):
+
+    A = H^T P H,          b = H^T P (y - h(X, theta_bar) + H theta_bar)          (S)
+
+packed as the 5-vector (A00, A01, A11, b0, b1).  The M-step solves
+theta_k = A_k^-1 b_k on the smoothed statistics (one Gauss-Newton step).
+
+Each particle i carries tau^i (N, M, 5).  The smoothers of section 2 propagate
+it from the particles at t-1 to those at t:
+
+    forward   tau_t^i = sum_j beta_t(i, j) tau_{t-1}^j,  beta_t(i, j) ∝ w_{t-1}^j m(xi_{t-1}^j, xi_t^i)
+    paris     tau_t^i = (1/K) sum_k tau_{t-1}^{J_ik},   J_ik ~ beta_t(i, .) by accept-reject
+    ancestry  tau_t^i = tau_{t-1}^{a_i}
+
+before the new statistic is blended in (online EM) or added (block EM).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .angles import wrap_angle
+from .particles import gaussian_transition_logpdf
+
+STAT_DIM = 5
+
+
+def observation_statistics(H: np.ndarray, precision: np.ndarray, nu: np.ndarray,
+                           theta_bar: np.ndarray) -> np.ndarray:
+    """Equation (S) for Jacobians H (..., 2, 2), precisions (..., 2, 2), innovations (..., 2).
+
+    theta_bar broadcasts against the leading axes (e.g. (P, 2) for (N, P, ...)).
+    """
+    PH = precision @ H
+    A = np.swapaxes(H, -1, -2) @ PH
+    target = nu + np.einsum("...ij,...j->...i", H, np.broadcast_to(theta_bar, nu.shape))
+    b = np.einsum("...ji,...j->...i", PH, target)
+    out = np.empty(nu.shape[:-1] + (STAT_DIM,))
+    out[..., 0] = A[..., 0, 0]
+    out[..., 1] = 0.5 * (A[..., 0, 1] + A[..., 1, 0])
+    out[..., 2] = A[..., 1, 1]
+    out[..., 3:] = b
+    return out
+
+
+def unpack(stats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(A (..., 2, 2), b (..., 2)) from packed statistics (..., 5)."""
+    A = np.empty(stats.shape[:-1] + (2, 2))
+    A[..., 0, 0] = stats[..., 0]
+    A[..., 0, 1] = A[..., 1, 0] = stats[..., 1]
+    A[..., 1, 1] = stats[..., 2]
+    return A, stats[..., 3:5]
+
+
+def m_step(stats: np.ndarray, rcond: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """theta = A^-1 b per landmark; ``ok`` is False where A is (near) singular or not positive."""
+    a00, a01, a11, b0, b1 = (stats[..., i] for i in range(STAT_DIM))
+    det = a00 * a11 - a01 * a01
+    scale = np.maximum(a00 + a11, 1e-300)
+    ok = (det > rcond * scale * scale) & (a00 > 0) & np.isfinite(det)
+    safe = np.where(ok, det, 1.0)
+    theta = np.stack([(a11 * b0 - a01 * b1) / safe, (a00 * b1 - a01 * b0) / safe], axis=-1)
+    return theta, ok & np.all(np.isfinite(theta), axis=-1)
+
+
+def information_covariance(stats: np.ndarray, inverse_sample_size: np.ndarray) -> np.ndarray:
+    """Landmark covariance q A^-1: A is the averaged information per observation,
+    q = sum of squared step-size weights (1/n for plain averaging)."""
+    A, _ = unpack(stats)
+    det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] ** 2
+    safe = np.where(det > 1e-300, det, np.inf)
+    cov = np.empty_like(A)
+    cov[..., 0, 0] = A[..., 1, 1] / safe
+    cov[..., 1, 1] = A[..., 0, 0] / safe
+    cov[..., 0, 1] = cov[..., 1, 0] = -A[..., 0, 1] / safe
+    return cov * inverse_sample_size[..., None, None]
+
+
+def backward_kernel(log_weights_prev: np.ndarray, means: np.ndarray, covariances: np.ndarray,
+                    particles: np.ndarray) -> np.ndarray:
+    """beta_t(i, j) ∝ w_{t-1}^j m(xi_{t-1}^j, xi_t^i), rows normalised: (N_t, N_{t-1}).
+
+    ``means``/``covariances`` are the Gaussian transition (T) from each particle j
+    at t-1 to time t.  Rows with no finite entry fall back to the weights.
+    """
+    logk = gaussian_transition_logpdf(particles, means, covariances) + log_weights_prev[None, :]
+    top = logk.max(axis=1, keepdims=True)
+    bad = ~np.isfinite(top[:, 0])
+    if bad.any():
+        logk[bad] = log_weights_prev
+        top[bad, 0] = logk[bad].max(axis=1)
+    kernel = np.exp(logk - top)
+    kernel /= kernel.sum(axis=1, keepdims=True)
+    return kernel
+
+
+def forward_smooth(tau_prev: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """tau_t^i = sum_j beta(i, j) tau_{t-1}^j as one matrix product."""
+    n_prev = tau_prev.shape[0]
+    return (kernel @ tau_prev.reshape(n_prev, -1)).reshape((kernel.shape[0],) + tau_prev.shape[1:])
+
+
+def paris_indices(log_weights_prev: np.ndarray, means: np.ndarray, covariances: np.ndarray,
+                  particles: np.ndarray, draws: int, rng: np.random.Generator,
+                  max_rounds: int = 8) -> np.ndarray:
+    """J (N, K): K draws per particle i from beta_t(i, .) (PaRIS, Olsson & Westerborn 2017).
+
+    Accept-reject with proposal j ~ w_{t-1} and acceptance
+    m(xi_j, xi_i) / max_j' sup m(xi_j', .), O(N K) on average; draws still
+    pending after ``max_rounds`` rounds are taken exactly from their rows.
+    """
+    n, n_prev = particles.shape[0], means.shape[0]
+    weights = np.exp(log_weights_prev - log_weights_prev.max())
+    cumulative = np.cumsum(weights / weights.sum())
+    cumulative[-1] = 1.0
+    inv = np.linalg.inv(covariances)
+    _, logdet = np.linalg.slogdet(covariances)
+    log_norm = -0.5 * logdet - 1.5 * np.log(2 * np.pi)
+    log_bound = log_norm.max()
+    result = np.full((n, draws), -1, dtype=np.int64)
+    pending_i, pending_k = np.divmod(np.arange(n * draws), draws)
+    for _ in range(max_rounds):
+        if pending_i.size == 0:
+            break
+        j = np.minimum(np.searchsorted(cumulative, rng.random(pending_i.size), side="right"), n_prev - 1)
+        diff = particles[pending_i] - means[j]
+        diff[:, 2] = wrap_angle(diff[:, 2])
+        logm = log_norm[j] - 0.5 * np.einsum("pi,pij,pj->p", diff, inv[j], diff)
+        accept = np.log(rng.random(pending_i.size)) < logm - log_bound
+        result[pending_i[accept], pending_k[accept]] = j[accept]
+        pending_i, pending_k = pending_i[~accept], pending_k[~accept]
+    if pending_i.size:
+        rows, row_index = np.unique(pending_i, return_inverse=True)
+        kernel = backward_kernel(log_weights_prev, means, covariances, particles[rows])
+        cumulative_rows = np.cumsum(kernel, axis=1)
+        u = rng.random(pending_i.size)[:, None]
+        drawn = (cumulative_rows[row_index] < u).sum(axis=1)
+        result[pending_i, pending_k] = np.minimum(drawn, n_prev - 1)
+    return result
+
+
+def paris_smooth(tau_prev: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """tau_t^i = (1/K) sum_k tau_{t-1}^{J_ik}."""
+    return tau_prev[indices].mean(axis=1)
