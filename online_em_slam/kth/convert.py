@@ -1,0 +1,480 @@
+"""Convert the KTH datasets to ROS 2 bags (rosbags, Jazzy typestore); no rclpy needed.
+
+Command line::
+
+    online-em-slam-convert {car_park,victoria_park} OUTPUT [--data-dir D]
+                           [--storage mcap|sqlite3] [--overwrite] [--no-progress]
+
+Two layers:
+
+* :func:`build_streams` (pure numpy): the time series that go into the bag
+  (:class:`Streams`), so tests and the offline runner get exactly the same data
+  without writing or reading a bag;
+* :func:`iter_messages` / :func:`write_bag`: rosbags messages in time order, written
+  to an mcap or sqlite3 bag.
+
+Topics (all stamps are dataset times in seconds):
+
+==========================  ==============================  ===========  =====================
+topic                       type                            frame        content
+==========================  ==============================  ===========  =====================
+/tf_static                  tf2_msgs/msg/TFMessage          base_link    base_link -> laser (3.78, 0.5, 0)
+/odom                       nav_msgs/msg/Odometry           odom         dead-reckoned base_link pose + twist
+/control                    geometry_msgs/msg/TwistStamped  base_link    linear.x = v_e, angular.z = alpha
+/scan                       sensor_msgs/msg/LaserScan       laser        Car Park only, with intensities
+/landmark_observations      sensor_msgs/msg/PointCloud2     laser        range/bearing, id = -1
+/ground_truth/position      geometry_msgs/msg/PointStamped  map          GPS fix (= laser point)
+/ground_truth/landmarks     sensor_msgs/msg/PointCloud2     map          Car Park beacons x, y, z, id
+==========================  ==============================  ===========  =====================
+
+Dead reckoning (/odom): the ACFR model of the rear-axle centre, Euler-integrated
+with the control of sample k held over [t_k, t_k+1] (as core.motion.acfr):
+v_c = v_e / (1 - tan(alpha) H / L), phi' = v_c tan(alpha) / L, starting at the
+odom origin (0, 0, 0) at the first control sample.  Twist: linear.x = v_c,
+angular.z = phi'.  Covariances are left at 0 (not estimated).
+
+Observations: Car Park from :func:`extract_beacons` on every scan (an empty cloud
+for scans without a beacon, so that the consumer sees every scan); Victoria Park
+from tree_detections.dat (only scans with detections exist), with the range to
+the trunk centre = file range + diameter / 2 (the file gives the range to the
+trunk surface; the usual Victoria Park practice).  Bearings are in the sensor
+frame (0 = forward, CCW positive).  range_std = bearing_std = 0 ("use the
+configured noise").
+
+/scan: ranges as float32, "no return" (>= 81.9 m) written as +inf (REP 117),
+angle_min = -pi/2, angle_increment = 0.5 deg, range_max = 81.9, raw intensities.
+The /ground_truth/* frame ``map`` is the GPS east/north frame.
+"""
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..cloud import OBSERVATION_FIELDS, encode
+from .beacons import extract_beacons, observation_columns
+from .datasets import (VEHICLE, CarPark, GpsTrack, LaserScans, OdometryStream, Vehicle,
+                       VictoriaPark, load_car_park, load_victoria_park)
+
+GROUND_TRUTH_LANDMARK_FIELDS = (("x", "f4"), ("y", "f4"), ("z", "f4"), ("id", "i4"))
+
+TOPIC_TF_STATIC = "/tf_static"
+TOPIC_ODOM = "/odom"
+TOPIC_CONTROL = "/control"
+TOPIC_SCAN = "/scan"
+TOPIC_OBSERVATIONS = "/landmark_observations"
+TOPIC_GT_POSITION = "/ground_truth/position"
+TOPIC_GT_LANDMARKS = "/ground_truth/landmarks"
+
+MSGTYPES = {
+    TOPIC_TF_STATIC: "tf2_msgs/msg/TFMessage",
+    TOPIC_GT_LANDMARKS: "sensor_msgs/msg/PointCloud2",
+    TOPIC_CONTROL: "geometry_msgs/msg/TwistStamped",
+    TOPIC_ODOM: "nav_msgs/msg/Odometry",
+    TOPIC_GT_POSITION: "geometry_msgs/msg/PointStamped",
+    TOPIC_SCAN: "sensor_msgs/msg/LaserScan",
+    TOPIC_OBSERVATIONS: "sensor_msgs/msg/PointCloud2",
+}
+#: Order of messages sharing one stamp (static data first, motion before sensing).
+TOPIC_PRIORITY = {t: i for i, t in enumerate(MSGTYPES)}
+#: Topics published latched (TRANSIENT_LOCAL) in the bag's offered QoS.
+LATCHED_TOPICS = (TOPIC_TF_STATIC, TOPIC_GT_LANDMARKS)
+
+FRAME_MAP, FRAME_ODOM, FRAME_BASE, FRAME_LASER = "map", "odom", "base_link", "laser"
+
+
+# --------------------------------------------------------------------------- pure layer
+
+@dataclass(frozen=True)
+class Observations:
+    """Landmark observations grouped per scan (CSR): scan i is offsets[i]:offsets[i+1]."""
+
+    times: np.ndarray
+    offsets: np.ndarray
+    range: np.ndarray
+    bearing: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    @property
+    def n_detections(self) -> int:
+        return len(self.range)
+
+    def scan(self, i: int) -> tuple[float, np.ndarray, np.ndarray]:
+        s = slice(int(self.offsets[i]), int(self.offsets[i + 1]))
+        return float(self.times[i]), self.range[s], self.bearing[s]
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self.scan(i)
+
+
+@dataclass(frozen=True)
+class DeadReckoning:
+    """base_link poses (n, 3) in ``odom`` and the twist (v_c, phi') at each control time."""
+
+    times: np.ndarray
+    poses: np.ndarray
+    speed: np.ndarray
+    yaw_rate: np.ndarray
+
+
+@dataclass(frozen=True)
+class Streams:
+    """Everything the bag holds, as arrays (see the module docstring for the topics)."""
+
+    name: str
+    vehicle: Vehicle
+    control: OdometryStream
+    odom: DeadReckoning
+    observations: Observations
+    gps: GpsTrack
+    scans: LaserScans | None = None
+    landmarks: np.ndarray | None = None   # (M, 2) ground-truth landmark positions
+
+    @property
+    def start_time(self) -> float:
+        firsts = [self.control.times[:1], self.observations.times[:1], self.gps.times[:1]]
+        if self.scans is not None:
+            firsts.append(self.scans.times[:1])
+        return float(np.min(np.concatenate(firsts)))
+
+    def message_counts(self) -> dict[str, int]:
+        counts = {TOPIC_TF_STATIC: 1, TOPIC_ODOM: len(self.odom.times),
+                  TOPIC_CONTROL: len(self.control), TOPIC_OBSERVATIONS: len(self.observations),
+                  TOPIC_GT_POSITION: len(self.gps)}
+        if self.scans is not None:
+            counts[TOPIC_SCAN] = len(self.scans)
+        if self.landmarks is not None:
+            counts[TOPIC_GT_LANDMARKS] = 1
+        return counts
+
+
+def acfr_rates(speed, steering, vehicle: Vehicle = VEHICLE) -> tuple[np.ndarray, np.ndarray]:
+    """Centre speed v_c = v_e / (1 - tan(alpha) H / L) and yaw rate v_c tan(alpha) / L."""
+    tan_a = np.tan(np.asarray(steering, dtype=np.float64))
+    v_c = np.asarray(speed, dtype=np.float64) / (1.0 - tan_a * vehicle.encoder_offset / vehicle.wheelbase)
+    return v_c, v_c * tan_a / vehicle.wheelbase
+
+
+def dead_reckon(control: OdometryStream, vehicle: Vehicle = VEHICLE,
+                initial_pose=(0.0, 0.0, 0.0)) -> DeadReckoning:
+    """Euler integration of the ACFR model; pose k is the pose at control.times[k]."""
+    v_c, w = acfr_rates(control.speed, control.steering, vehicle)
+    n = len(control.times)
+    poses = np.empty((n, 3))
+    if n == 0:
+        return DeadReckoning(control.times, poses, v_c, w)
+    dt = np.diff(control.times)
+    phi = initial_pose[2] + np.concatenate([[0.0], np.cumsum(w[:-1] * dt)])
+    poses[:, 0] = initial_pose[0] + np.concatenate([[0.0], np.cumsum(v_c[:-1] * dt * np.cos(phi[:-1]))])
+    poses[:, 1] = initial_pose[1] + np.concatenate([[0.0], np.cumsum(v_c[:-1] * dt * np.sin(phi[:-1]))])
+    poses[:, 2] = np.arctan2(np.sin(phi), np.cos(phi))
+    return DeadReckoning(control.times, poses, v_c, w)
+
+
+def car_park_observations(scans: LaserScans, **beacon_kwargs) -> Observations:
+    """extract_beacons() on every scan (empty groups kept)."""
+    kwargs = {"max_range": scans.max_range, **beacon_kwargs}
+    offsets = [0]
+    rs, bs = [], []
+    for r, inten in zip(scans.ranges, scans.intensities):
+        d = extract_beacons(r, inten, scans.angle_min, scans.angle_increment, **kwargs)
+        rs.append(d.range)
+        bs.append(d.bearing)
+        offsets.append(offsets[-1] + len(d))
+    return Observations(scans.times.copy(), np.asarray(offsets, dtype=np.int64),
+                        np.concatenate(rs) if rs else np.zeros(0),
+                        np.concatenate(bs) if bs else np.zeros(0))
+
+
+def car_park_streams(data: CarPark | None = None, data_dir=None, **beacon_kwargs) -> Streams:
+    data = data if data is not None else load_car_park(data_dir)
+    return Streams("car_park", data.vehicle, data.odometry, dead_reckon(data.odometry, data.vehicle),
+                   car_park_observations(data.scans, **beacon_kwargs), data.gps,
+                   scans=data.scans, landmarks=data.beacons)
+
+
+def victoria_park_streams(data: VictoriaPark | None = None, data_dir=None,
+                          tree_centre: bool = True) -> Streams:
+    """``tree_centre``: range to the trunk centre (+ diameter / 2) instead of its surface."""
+    data = data if data is not None else load_victoria_park(data_dir)
+    trees = data.trees
+    rng = trees.centre_range if tree_centre else trees.range.copy()
+    obs = Observations(trees.times, trees.offsets, rng, trees.bearing)
+    return Streams("victoria_park", data.vehicle, data.dr, dead_reckon(data.dr, data.vehicle), obs, data.gps)
+
+
+STREAM_BUILDERS = {"car_park": car_park_streams, "victoria_park": victoria_park_streams}
+
+
+def build_streams(name: str, data_dir=None) -> Streams:
+    try:
+        builder = STREAM_BUILDERS[name]
+    except KeyError:
+        raise ValueError(f"unknown dataset {name!r}; choose from {sorted(STREAM_BUILDERS)}") from None
+    return builder(data_dir=data_dir)
+
+
+def to_ns(t) -> np.ndarray:
+    """Seconds -> integer nanoseconds (rounded)."""
+    return np.round(np.asarray(t, dtype=np.float64) * 1e9).astype(np.int64)
+
+
+def message_schedule(streams: Streams) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """Time order of all messages: (stamps_ns, topics, index within topic), sorted
+    by stamp, then TOPIC_PRIORITY, then index."""
+    t0 = streams.start_time
+    per_topic = {TOPIC_TF_STATIC: np.array([t0]), TOPIC_CONTROL: streams.control.times,
+                 TOPIC_ODOM: streams.odom.times, TOPIC_GT_POSITION: streams.gps.times,
+                 TOPIC_OBSERVATIONS: streams.observations.times}
+    if streams.landmarks is not None:
+        per_topic[TOPIC_GT_LANDMARKS] = np.array([t0])
+    if streams.scans is not None:
+        per_topic[TOPIC_SCAN] = streams.scans.times
+    topics = list(per_topic)
+    stamps = np.concatenate([to_ns(per_topic[t]) for t in topics])
+    prio = np.concatenate([np.full(len(per_topic[t]), TOPIC_PRIORITY[t]) for t in topics])
+    index = np.concatenate([np.arange(len(per_topic[t])) for t in topics])
+    order = np.lexsort((index, prio, stamps))
+    names = sorted(TOPIC_PRIORITY, key=TOPIC_PRIORITY.get)
+    return stamps[order], [names[p] for p in prio[order]], index[order]
+
+
+# --------------------------------------------------------------------------- rosbags messages
+
+def jazzy_typestore():
+    from rosbags.typesys import Stores, get_typestore
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+class MessageFactory:
+    """Builds rosbags message objects for the streams."""
+
+    def __init__(self, streams: Streams, typestore=None):
+        self.s = streams
+        self.ts = typestore or jazzy_typestore()
+        T = self.ts.types
+        self.Time = T["builtin_interfaces/msg/Time"]
+        self.Header = T["std_msgs/msg/Header"]
+        self.Vector3 = T["geometry_msgs/msg/Vector3"]
+        self.Point = T["geometry_msgs/msg/Point"]
+        self.Quaternion = T["geometry_msgs/msg/Quaternion"]
+        self.T = T
+        self._field_cache: dict = {}
+
+    def header(self, stamp_ns: int, frame: str):
+        sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+        return self.Header(stamp=self.Time(sec=sec, nanosec=nsec), frame_id=frame)
+
+    def _quat(self, yaw: float):
+        return self.Quaternion(x=0.0, y=0.0, z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2)))
+
+    def _cloud(self, stamp_ns: int, frame: str, columns: dict, layout):
+        T = self.T
+        specs, step, data = encode(columns, layout=layout)
+        key = tuple(layout)
+        if key not in self._field_cache:
+            self._field_cache[key] = [T["sensor_msgs/msg/PointField"](name=f.name, offset=f.offset,
+                                                                      datatype=f.datatype, count=f.count)
+                                      for f in specs]
+        n = len(data) // step if step else 0
+        return T["sensor_msgs/msg/PointCloud2"](
+            header=self.header(stamp_ns, frame), height=1, width=n, fields=self._field_cache[key],
+            is_bigendian=False, point_step=step, row_step=step * n,
+            data=np.frombuffer(data, dtype=np.uint8).copy(), is_dense=True)
+
+    def tf_static(self, stamp_ns: int):
+        T, v = self.T, self.s.vehicle
+        tf = T["geometry_msgs/msg/TransformStamped"](
+            header=self.header(stamp_ns, FRAME_BASE), child_frame_id=FRAME_LASER,
+            transform=T["geometry_msgs/msg/Transform"](
+                translation=self.Vector3(x=float(v.sensor_x), y=float(v.sensor_y), z=0.0),
+                rotation=self._quat(0.0)))
+        return T["tf2_msgs/msg/TFMessage"](transforms=[tf])
+
+    def gt_landmarks(self, stamp_ns: int):
+        lm = self.s.landmarks
+        cols = {"x": lm[:, 0], "y": lm[:, 1], "z": np.zeros(len(lm)), "id": np.arange(len(lm), dtype=np.int32)}
+        return self._cloud(stamp_ns, FRAME_MAP, cols, GROUND_TRUTH_LANDMARK_FIELDS)
+
+    def control(self, stamp_ns: int, i: int):
+        T, c = self.T, self.s.control
+        return T["geometry_msgs/msg/TwistStamped"](
+            header=self.header(stamp_ns, FRAME_BASE),
+            twist=T["geometry_msgs/msg/Twist"](linear=self.Vector3(x=float(c.speed[i]), y=0.0, z=0.0),
+                                               angular=self.Vector3(x=0.0, y=0.0, z=float(c.steering[i]))))
+
+    def odom(self, stamp_ns: int, i: int):
+        T, o = self.T, self.s.odom
+        x, y, yaw = (float(v) for v in o.poses[i])
+        pose = T["geometry_msgs/msg/PoseWithCovariance"](
+            pose=T["geometry_msgs/msg/Pose"](position=self.Point(x=x, y=y, z=0.0), orientation=self._quat(yaw)),
+            covariance=np.zeros(36))
+        twist = T["geometry_msgs/msg/TwistWithCovariance"](
+            twist=T["geometry_msgs/msg/Twist"](linear=self.Vector3(x=float(o.speed[i]), y=0.0, z=0.0),
+                                               angular=self.Vector3(x=0.0, y=0.0, z=float(o.yaw_rate[i]))),
+            covariance=np.zeros(36))
+        return T["nav_msgs/msg/Odometry"](header=self.header(stamp_ns, FRAME_ODOM),
+                                          child_frame_id=FRAME_BASE, pose=pose, twist=twist)
+
+    def gt_position(self, stamp_ns: int, i: int):
+        g = self.s.gps
+        return self.T["geometry_msgs/msg/PointStamped"](
+            header=self.header(stamp_ns, FRAME_MAP), point=self.Point(x=float(g.x[i]), y=float(g.y[i]), z=0.0))
+
+    def scan(self, stamp_ns: int, i: int):
+        sc = self.s.scans
+        r = sc.ranges[i].astype(np.float32)
+        r[~(sc.ranges[i] < sc.max_range)] = np.inf
+        period = float(np.median(np.diff(sc.times))) if len(sc.times) > 1 else 0.0
+        n = r.size
+        return self.T["sensor_msgs/msg/LaserScan"](
+            header=self.header(stamp_ns, FRAME_LASER), angle_min=float(sc.angle_min),
+            angle_max=float(sc.angle_min + (n - 1) * sc.angle_increment),
+            angle_increment=float(sc.angle_increment), time_increment=0.0, scan_time=period,
+            range_min=0.0, range_max=float(sc.max_range), ranges=r,
+            intensities=sc.intensities[i].astype(np.float32))
+
+    def observations(self, stamp_ns: int, i: int):
+        _, rng, brg = self.s.observations.scan(i)
+        return self._cloud(stamp_ns, FRAME_LASER, observation_columns(rng, brg), OBSERVATION_FIELDS)
+
+    def build(self, topic: str, stamp_ns: int, i: int):
+        if topic == TOPIC_TF_STATIC:
+            return self.tf_static(stamp_ns)
+        if topic == TOPIC_GT_LANDMARKS:
+            return self.gt_landmarks(stamp_ns)
+        return {TOPIC_CONTROL: self.control, TOPIC_ODOM: self.odom, TOPIC_GT_POSITION: self.gt_position,
+                TOPIC_SCAN: self.scan, TOPIC_OBSERVATIONS: self.observations}[topic](stamp_ns, i)
+
+
+def iter_messages(streams: Streams, typestore=None):
+    """Yield (stamp_ns, topic, msgtype, rosbags message) in time order."""
+    factory = MessageFactory(streams, typestore)
+    stamps, topics, index = message_schedule(streams)
+    for stamp, topic, i in zip(stamps.tolist(), topics, index.tolist()):
+        yield stamp, topic, MSGTYPES[topic], factory.build(topic, stamp, i)
+
+
+class Progress:
+    """Plain-text progress bar on a stream (stderr), redrawn at most every 0.2 s."""
+
+    def __init__(self, total: int, label: str = "", stream=None, enabled: bool = True, width: int = 30):
+        self.total, self.label, self.width = max(int(total), 1), label, width
+        self.stream = stream if stream is not None else sys.stderr
+        self.enabled = enabled
+        self.start = self._last = time.monotonic()
+        self.count = 0
+        self._drawn = -1
+
+    def update(self, n: int = 1) -> None:
+        self.count += n
+        now = time.monotonic()
+        if self.enabled and (now - self._last >= 0.2 or self.count >= self.total):
+            self._last = now
+            self._draw(now)
+
+    def _draw(self, now: float) -> None:
+        frac = min(self.count / self.total, 1.0)
+        bar = "#" * int(frac * self.width)
+        self._drawn = self.count
+        self.stream.write(f"\r{self.label} [{bar:<{self.width}}] {100 * frac:5.1f}% "
+                          f"{self.count}/{self.total} {now - self.start:6.1f}s")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            if self._drawn != self.count:
+                self._draw(time.monotonic())
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _latched_qos():
+    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
+                                    QosReliability, QosTime)
+    zero = QosTime(sec=0, nsec=0)
+    return [Qos(history=QosHistory.KEEP_LAST, depth=1, reliability=QosReliability.RELIABLE,
+                durability=QosDurability.TRANSIENT_LOCAL, deadline=zero, lifespan=zero,
+                liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=zero,
+                avoid_ros_namespace_conventions=False)]
+
+
+def write_bag(streams: Streams, output, storage: str = "mcap", progress: bool = True,
+              overwrite: bool = False, stream=None) -> dict[str, int]:
+    """Write the streams to a ROS 2 bag directory ``output``; returns messages per topic."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    output = Path(output)
+    if output.exists():
+        if not overwrite:
+            raise FileExistsError(f"{output} exists (use overwrite)")
+        if not (output / "metadata.yaml").exists() and any(output.iterdir()):
+            raise FileExistsError(f"{output} exists and does not look like a bag; not removing it")
+        shutil.rmtree(output)
+    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    ts = jazzy_typestore()
+    counts = {t: 0 for t in streams.message_counts()}
+    bar = Progress(sum(streams.message_counts().values()), f"{streams.name} -> {output.name}",
+                   stream=stream, enabled=progress)
+    with Writer(output, version=9, storage_plugin=plugin) as writer:
+        conns = {}
+        for topic in sorted(counts, key=TOPIC_PRIORITY.get):
+            qos = _latched_qos() if topic in LATCHED_TOPICS else ()
+            conns[topic] = writer.add_connection(topic, MSGTYPES[topic], typestore=ts,
+                                                 offered_qos_profiles=qos)
+        for stamp, topic, msgtype, msg in iter_messages(streams, ts):
+            writer.write(conns[topic], stamp, ts.serialize_cdr(msg, msgtype))
+            counts[topic] += 1
+            bar.update()
+    bar.close()
+    return counts
+
+
+def convert(name: str, output, data_dir=None, storage: str = "mcap", progress: bool = True,
+            overwrite: bool = False) -> dict[str, int]:
+    return write_bag(build_streams(name, data_dir), output, storage=storage, progress=progress,
+                     overwrite=overwrite)
+
+
+def _dir_size(path: Path) -> int:
+    return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="online-em-slam-convert",
+        description="Convert a KTH SLAM dataset (ACFR ute) to a ROS 2 bag.")
+    parser.add_argument("dataset", choices=sorted(STREAM_BUILDERS))
+    parser.add_argument("output", help="bag directory to create")
+    parser.add_argument("--data-dir", default=None,
+                        help="directory holding car_park/ and victoria_park/ (default: packaged data, "
+                             "or $ONLINE_EM_SLAM_DATA)")
+    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing bag directory")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    args = parser.parse_args(argv)
+    t0 = time.monotonic()
+    try:
+        counts = convert(args.dataset, args.output, args.data_dir, args.storage,
+                         progress=not args.no_progress, overwrite=args.overwrite)
+    except (FileNotFoundError, FileExistsError, ValueError) as exc:
+        print(f"online-em-slam-convert: error: {exc}", file=sys.stderr)
+        return 1
+    elapsed = time.monotonic() - t0
+    for topic, n in counts.items():
+        print(f"{topic:28s} {n:8d}")
+    print(f"wrote {sum(counts.values())} messages to {args.output} "
+          f"({_dir_size(Path(args.output)) / 1e6:.1f} MB, {args.storage}) in {elapsed:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

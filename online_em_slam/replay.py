@@ -1,0 +1,200 @@
+"""Lossless bag replay with rclpy (a stand-in for ``ros2 bag play`` where ros2cli is absent).
+
+    online-em-slam-replay BAG [--rate R] [--topics T ...] [--wait-subscribers TOPIC:COUNT ...]
+                          [--wait-timeout S] [--clock] [--start-delay S] [--ack-timeout S]
+
+Raw CDR bytes from the bag (rosbags reader) are published unchanged through
+publishers created with the real rclpy message classes (type names resolved with
+importlib: 'sensor_msgs/msg/PointCloud2' -> sensor_msgs.msg.PointCloud2).  Timing
+follows the bag's log times scaled by ``--rate`` (``--rate 0``: as fast as
+possible).  QoS: RELIABLE + KEEP_ALL so that nothing is dropped by a matched
+reliable subscriber; topics recorded as TRANSIENT_LOCAL (/tf_static, latched
+ground truth) are offered TRANSIENT_LOCAL.  ``--clock`` publishes
+rosgraph_msgs/Clock on /clock with the log time before each message.
+
+At the end the number of messages published per topic is printed, followed by
+one JSON line ``{"published": {...}, "skipped_topics": {...}, ...}`` on stdout.
+Topics whose message package is not importable are skipped with a warning.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+import time
+from pathlib import Path
+
+
+def message_class(msgtype: str):
+    """'pkg/msg/Type' (or 'pkg/Type') -> the rclpy message class."""
+    parts = msgtype.split("/")
+    if len(parts) == 2:
+        parts = [parts[0], "msg", parts[1]]
+    if len(parts) != 3 or not all(parts):
+        raise ValueError(f"bad message type name {msgtype!r}")
+    module = importlib.import_module(f"{parts[0]}.{parts[1]}")
+    return getattr(module, parts[2])
+
+
+def parse_wait(specs) -> dict[str, int]:
+    out = {}
+    for spec in specs or ():
+        topic, sep, count = spec.rpartition(":")
+        if not sep or not topic:
+            topic, count = spec, "1"
+        try:
+            out[topic] = int(count)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"--wait-subscribers expects TOPIC:COUNT, got {spec!r}") from None
+    return out
+
+
+def _is_latched(conn) -> bool:
+    from rosbags.interfaces import QosDurability
+    profiles = getattr(conn.ext, "offered_qos_profiles", None) or []
+    if isinstance(profiles, str):   # older metadata kept as YAML text
+        return "durability: 1" in profiles or "transient_local" in profiles.lower()
+    return any(getattr(p, "durability", None) == QosDurability.TRANSIENT_LOCAL for p in profiles)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="online-em-slam-replay",
+                                description="Replay a ROS 2 bag losslessly with rclpy (raw CDR).")
+    p.add_argument("bag", help="bag directory (mcap or sqlite3)")
+    p.add_argument("--rate", type=float, default=1.0, help="time scale (2 = twice as fast; 0 = no waiting)")
+    p.add_argument("--topics", nargs="+", default=None, help="only these topics")
+    p.add_argument("--wait-subscribers", nargs="+", default=[], metavar="TOPIC:COUNT",
+                   help="before starting, wait until each topic has at least COUNT subscribers")
+    p.add_argument("--wait-timeout", type=float, default=30.0, help="seconds to wait for subscribers")
+    p.add_argument("--clock", action="store_true", help="publish /clock (rosgraph_msgs/Clock)")
+    p.add_argument("--start-delay", type=float, default=0.0, help="seconds to sleep after discovery")
+    p.add_argument("--ack-timeout", type=float, default=10.0,
+                   help="at the end, seconds to wait until reliable subscribers acknowledged everything")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        wait = parse_wait(args.wait_subscribers)
+    except argparse.ArgumentTypeError as exc:
+        print(f"online-em-slam-replay: error: {exc}", file=sys.stderr)
+        return 2
+    bag = Path(args.bag)
+    if not bag.exists():
+        print(f"online-em-slam-replay: error: bag {bag} does not exist", file=sys.stderr)
+        return 1
+
+    import rclpy
+    from rclpy.duration import Duration
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rosbags.rosbag2 import Reader
+
+    def log(text: str) -> None:
+        if not args.quiet:
+            print(text, file=sys.stderr, flush=True)
+
+    rclpy.init(args=None)
+    node = rclpy.create_node("bag_replay")
+    publishers, skipped = {}, {}
+    counts: dict[str, int] = {}
+    exit_code = 0
+    try:
+        with Reader(bag) as reader:
+            conns = [c for c in reader.connections if args.topics is None or c.topic in args.topics]
+            if args.topics:
+                missing = sorted(set(args.topics) - {c.topic for c in reader.connections})
+                if missing:
+                    log(f"replay: topics not in the bag: {', '.join(missing)}")
+            for conn in conns:
+                if conn.topic in publishers or conn.topic in skipped:
+                    continue
+                try:
+                    cls = message_class(conn.msgtype)
+                except (ImportError, AttributeError, ValueError) as exc:
+                    skipped[conn.topic] = f"{conn.msgtype}: {exc}"
+                    log(f"replay: skipping {conn.topic} ({conn.msgtype} not importable)")
+                    continue
+                latched = _is_latched(conn) or conn.topic == "/tf_static"
+                qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=100000,
+                                 reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+                                 else DurabilityPolicy.VOLATILE)
+                publishers[conn.topic] = node.create_publisher(cls, conn.topic, qos)
+                counts[conn.topic] = 0
+            clock_pub = None
+            if args.clock:
+                from rosgraph_msgs.msg import Clock
+                clock_pub = node.create_publisher(
+                    Clock, "/clock", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+
+            # Wait for subscribers (discovery runs in the middleware's own threads).
+            deadline = time.monotonic() + args.wait_timeout
+            for topic, want in wait.items():
+                def have(topic=topic):
+                    pub = publishers.get(topic)
+                    return pub.get_subscription_count() if pub is not None else node.count_subscribers(topic)
+                while have() < want and time.monotonic() < deadline:
+                    time.sleep(0.02)
+                if have() < want:
+                    log(f"replay: timeout: {topic} has {have()} of {want} subscribers; starting anyway")
+                    exit_code = 3
+                else:
+                    log(f"replay: {topic} has {have()} subscriber(s)")
+            if args.start_delay > 0:
+                time.sleep(args.start_delay)
+
+            total = sum(c.msgcount for c in conns if c.topic in publishers)
+            conns = [c for c in conns if c.topic in publishers]
+            start_wall = time.monotonic()
+            bag_start = None
+            last_clock = None
+            last_report = start_wall
+            n = 0
+            for conn, log_time, raw in reader.messages(connections=conns):
+                if bag_start is None:
+                    bag_start = log_time
+                if args.rate > 0:
+                    due = start_wall + (log_time - bag_start) * 1e-9 / args.rate
+                    delay = due - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                if clock_pub is not None and (last_clock is None or log_time > last_clock):
+                    clock = Clock()
+                    clock.clock.sec, clock.clock.nanosec = divmod(int(log_time), 1_000_000_000)
+                    clock_pub.publish(clock)
+                    last_clock = log_time
+                publishers[conn.topic].publish(bytes(raw))
+                counts[conn.topic] += 1
+                n += 1
+                now = time.monotonic()
+                if now - last_report >= 1.0:
+                    last_report = now
+                    log(f"replay: {n}/{total} messages, bag time {(log_time - bag_start) * 1e-9:.1f} s, "
+                        f"wall {now - start_wall:.1f} s")
+            elapsed = time.monotonic() - start_wall
+            acked = True
+            for pub in publishers.values():
+                if pub.get_subscription_count() > 0:
+                    acked &= bool(pub.wait_for_all_acked(Duration(seconds=args.ack_timeout)))
+            if not acked:
+                log("replay: not every message was acknowledged within --ack-timeout")
+    except KeyboardInterrupt:
+        exit_code = 130
+        elapsed = float("nan")
+        acked = False
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+    for topic, c in counts.items():
+        print(f"{topic:32s} {c:8d}")
+    print(json.dumps({"published": counts, "total": sum(counts.values()), "skipped_topics": skipped,
+                      "wall_seconds": round(elapsed, 3), "acknowledged": acked}), flush=True)
+    return exit_code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,229 @@
+"""Conversions between ROS messages and the core's types (no node state here).
+
+Every function that writes floats into a message refuses non-finite values
+(returns None or skips the row) so that no NaN reaches a topic.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from builtin_interfaces.msg import Time as TimeMsg
+from geometry_msgs.msg import (Point, Pose, PoseArray, PoseStamped, PoseWithCovarianceStamped,
+                               Quaternion, TransformStamped)
+from sensor_msgs.msg import PointCloud2, PointField
+from std_msgs.msg import ColorRGBA, Header
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ..cloud import LANDMARK_FIELDS, OBSERVATION_FIELDS, CloudFormatError, decode_message, encode
+from ..core.angles import wrap_angle
+from ..core.types import LandmarkMap, Observations, PoseEstimate
+
+__all__ = ["CloudFormatError", "stamp_to_sec", "sec_to_stamp", "yaw_to_quaternion", "quaternion_to_yaw",
+           "observations_from_cloud", "observations_to_cloud", "landmarks_to_cloud", "landmarks_to_markers",
+           "pose_to_msg", "particles_to_msg", "pose2d_compose", "pose2d_inverse", "transform_msg",
+           "COVARIANCE_INDEX"]
+
+# (row, col) of the 3x3 (x, y, yaw) covariance -> index in the 6x6 row-major ROS covariance.
+COVARIANCE_INDEX = {(0, 0): 0, (0, 1): 1, (0, 2): 5, (1, 0): 6, (1, 1): 7, (1, 2): 11,
+                    (2, 0): 30, (2, 1): 31, (2, 2): 35}
+
+
+def stamp_to_sec(stamp) -> float:
+    return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+
+
+def sec_to_stamp(seconds: float) -> TimeMsg:
+    """builtin_interfaces/Time from seconds (clamped to the message's range, >= 0)."""
+    nanoseconds = max(0, min(int(round(float(seconds) * 1e9)), (2 ** 31 - 1) * 10 ** 9))
+    return TimeMsg(sec=nanoseconds // 10 ** 9, nanosec=nanoseconds % 10 ** 9)
+
+
+def yaw_to_quaternion(yaw: float) -> Quaternion:
+    half = 0.5 * float(yaw)
+    return Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half))
+
+
+def quaternion_to_yaw(q) -> float:
+    """Yaw (rotation about z) of a quaternion; the roll/pitch parts are ignored."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def _finite(*values) -> bool:
+    return all(bool(np.all(np.isfinite(np.asarray(v, dtype=float)))) for v in values)
+
+
+# ----------------------------------------------------------------- observations
+def observations_from_cloud(msg: PointCloud2) -> Observations:
+    """Observations from a PointCloud2 with fields range, bearing [, id, range_std, bearing_std].
+
+    Raises CloudFormatError for missing fields or inconsistent sizes.  Values
+    are passed on as they are (the core drops and counts non-finite and
+    negative ranges); bearings are wrapped to (-pi, pi].
+    """
+    columns = decode_message(msg, required=("range", "bearing"))
+    ranges = np.asarray(columns["range"], dtype=float)
+    bearings = np.asarray(columns["bearing"], dtype=float)
+    finite = np.isfinite(bearings)
+    bearings = np.where(finite, wrap_angle(np.where(finite, bearings, 0.0)), bearings)
+    ids = columns.get("id")
+    ids = (np.full(ranges.shape, -1, dtype=np.int64) if ids is None
+           else np.asarray(ids).astype(np.int64, copy=False))
+    std = {name: (np.asarray(columns[name], dtype=float) if name in columns else None)
+           for name in ("range_std", "bearing_std")}
+    return Observations(ranges, bearings, ids, std["range_std"], std["bearing_std"])
+
+
+def _point_fields(specs) -> list[PointField]:
+    return [PointField(name=s.name, offset=s.offset, datatype=s.datatype, count=s.count) for s in specs]
+
+
+def _cloud(header: Header, columns: dict, layout) -> PointCloud2:
+    specs, point_step, data = encode(columns, layout)
+    n = len(data) // point_step if point_step else 0
+    msg = PointCloud2(header=header, height=1, width=n, fields=_point_fields(specs), is_bigendian=False,
+                      point_step=point_step, row_step=point_step * n, is_dense=True)
+    msg.data = data
+    return msg
+
+
+def observations_to_cloud(header: Header, ranges, bearings, ids=None, range_std=None,
+                          bearing_std=None) -> PointCloud2:
+    """PointCloud2 in the OBSERVATION_FIELDS layout (x, y, z in the sensor frame)."""
+    ranges = np.asarray(ranges, dtype=float)
+    bearings = np.asarray(bearings, dtype=float)
+    n = ranges.shape[0]
+    columns = {"x": ranges * np.cos(bearings), "y": ranges * np.sin(bearings), "z": np.zeros(n),
+               "range": ranges, "bearing": bearings,
+               "id": np.full(n, -1) if ids is None else np.asarray(ids),
+               "range_std": np.full(n, np.nan) if range_std is None else np.asarray(range_std),
+               "bearing_std": np.full(n, np.nan) if bearing_std is None else np.asarray(bearing_std)}
+    return _cloud(header, columns, OBSERVATION_FIELDS)
+
+
+# ----------------------------------------------------------------- landmark map
+def _finite_rows(landmarks: LandmarkMap) -> np.ndarray:
+    pos = np.asarray(landmarks.positions, dtype=float).reshape(-1, 2)
+    cov = np.asarray(landmarks.covariances, dtype=float).reshape(-1, 2, 2)
+    return np.isfinite(pos).all(axis=1) & np.isfinite(cov).all(axis=(1, 2))
+
+
+def landmarks_to_cloud(header: Header, landmarks: LandmarkMap) -> tuple[PointCloud2, int]:
+    """The map as PointCloud2 (LANDMARK_FIELDS) and the number of non-finite rows left out."""
+    keep = _finite_rows(landmarks)
+    pos = np.asarray(landmarks.positions, dtype=float).reshape(-1, 2)[keep]
+    cov = np.asarray(landmarks.covariances, dtype=float).reshape(-1, 2, 2)[keep]
+    columns = {"x": pos[:, 0], "y": pos[:, 1], "z": np.zeros(len(pos)),
+               "id": np.asarray(landmarks.ids)[keep], "cov_xx": cov[:, 0, 0], "cov_xy": cov[:, 0, 1],
+               "cov_yy": cov[:, 1, 1], "n_obs": np.asarray(landmarks.n_obs)[keep]}
+    return _cloud(header, columns, LANDMARK_FIELDS), int((~keep).sum())
+
+
+def ellipse_points(mean, cov, n_sigma: float, n_points: int = 24) -> np.ndarray | None:
+    """Closed polyline (n_points + 1, 2) of the n_sigma covariance ellipse, or None if degenerate."""
+    cov = 0.5 * (np.asarray(cov, dtype=float) + np.asarray(cov, dtype=float).T)
+    if not _finite(mean, cov):
+        return None
+    values, vectors = np.linalg.eigh(cov)
+    radii = n_sigma * np.sqrt(np.clip(values, 0.0, None))
+    t = np.linspace(0.0, 2.0 * np.pi, n_points + 1)
+    unit = np.stack([np.cos(t), np.sin(t)], axis=1) * radii
+    points = unit @ vectors.T + np.asarray(mean, dtype=float)
+    return points if _finite(points) else None
+
+
+def landmarks_to_markers(header: Header, landmarks: LandmarkMap, n_sigma: float = 2.0,
+                         namespace: str = "landmarks") -> MarkerArray:
+    """A DELETEALL, then per landmark a LINE_STRIP covariance ellipse and a TEXT id.
+
+    Confirmed landmarks are green, tentative ones orange.
+    """
+    array = MarkerArray()
+    array.markers.append(Marker(header=header, action=Marker.DELETEALL))
+    keep = _finite_rows(landmarks)
+    confirmed = np.asarray(landmarks.confirmed, dtype=bool).reshape(-1)
+    for row in np.flatnonzero(keep):
+        mean = landmarks.positions[row]
+        points = ellipse_points(mean, landmarks.covariances[row], n_sigma)
+        if points is None:
+            continue
+        lid = int(landmarks.ids[row]) % 2 ** 31    # Marker.id is int32
+        color = (ColorRGBA(r=0.1, g=0.8, b=0.2, a=1.0) if confirmed[row]
+                 else ColorRGBA(r=1.0, g=0.55, b=0.0, a=0.8))
+        ellipse = Marker(header=header, ns=namespace + "/ellipses", id=lid, type=Marker.LINE_STRIP,
+                         action=Marker.ADD, color=color, frame_locked=False)
+        ellipse.pose.orientation.w = 1.0
+        ellipse.scale.x = 0.05
+        ellipse.points = [Point(x=float(x), y=float(y), z=0.0) for x, y in points]
+        text = Marker(header=header, ns=namespace + "/ids", id=lid, type=Marker.TEXT_VIEW_FACING,
+                      action=Marker.ADD, color=ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0), text=str(lid))
+        text.pose.position = Point(x=float(mean[0]), y=float(mean[1]), z=0.5)
+        text.pose.orientation.w = 1.0
+        text.scale.z = 0.6
+        array.markers.extend((ellipse, text))
+    return array
+
+
+# ----------------------------------------------------------------- poses
+def pose_msg(x: float, y: float, yaw: float) -> Pose:
+    pose = Pose()
+    pose.position = Point(x=float(x), y=float(y), z=0.0)
+    pose.orientation = yaw_to_quaternion(yaw)
+    return pose
+
+
+def pose_to_msg(header: Header, estimate: PoseEstimate) -> PoseWithCovarianceStamped | None:
+    """PoseWithCovarianceStamped of the (x, y, yaw) estimate; None if anything is non-finite."""
+    mean = np.asarray(estimate.mean, dtype=float).reshape(3)
+    cov = np.asarray(estimate.covariance, dtype=float).reshape(3, 3)
+    if not _finite(mean, cov):
+        return None
+    msg = PoseWithCovarianceStamped(header=header)
+    msg.pose.pose = pose_msg(*mean)
+    covariance = [0.0] * 36
+    for (i, j), index in COVARIANCE_INDEX.items():
+        covariance[index] = float(cov[i, j])
+    msg.pose.covariance = covariance
+    return msg
+
+
+def pose_stamped(header: Header, mean) -> PoseStamped | None:
+    mean = np.asarray(mean, dtype=float).reshape(3)
+    if not _finite(mean):
+        return None
+    return PoseStamped(header=header, pose=pose_msg(*mean))
+
+
+def particles_to_msg(header: Header, poses: np.ndarray) -> PoseArray:
+    """PoseArray of the particles (non-finite particles are left out)."""
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    poses = poses[np.isfinite(poses).all(axis=1)]
+    return PoseArray(header=header, poses=[pose_msg(*p) for p in poses])
+
+
+# ----------------------------------------------------------------- 2-D transforms
+def pose2d_compose(a, b) -> np.ndarray:
+    """a (+) b: pose b expressed in a's frame, mapped to a's parent frame."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], wrap_angle(a[2] + b[2])])
+
+
+def pose2d_inverse(a) -> np.ndarray:
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([-c * a[0] - s * a[1], s * a[0] - c * a[1], wrap_angle(-a[2])])
+
+
+def transform_msg(stamp: TimeMsg, parent: str, child: str, pose) -> TransformStamped | None:
+    """TransformStamped T(parent <- child) from a 2-D pose of child in parent; None if non-finite."""
+    pose = np.asarray(pose, dtype=float).reshape(3)
+    if not _finite(pose):
+        return None
+    msg = TransformStamped()
+    msg.header.stamp = stamp
+    msg.header.frame_id = parent
+    msg.child_frame_id = child
+    msg.transform.translation.x = float(pose[0])
+    msg.transform.translation.y = float(pose[1])
+    msg.transform.translation.z = 0.0
+    msg.transform.rotation = yaw_to_quaternion(pose[2])
+    return msg

@@ -1,0 +1,49 @@
+"""ament_python package setup for online_em_slam (colcon build / pip install)."""
+import os
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "online_em_slam"
+
+
+def tree(source, target_root):
+    """data_files entries installing every file below ``source`` keeping its layout."""
+    entries = {}
+    for path in glob(os.path.join(source, "**", "*"), recursive=True):
+        if os.path.isfile(path):
+            target = os.path.join(target_root, os.path.dirname(path))
+            entries.setdefault(target, []).append(path)
+    return sorted(entries.items())
+
+
+share = os.path.join("share", PACKAGE)
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [os.path.join("resource", PACKAGE)]),
+        (share, ["package.xml"]),
+        (os.path.join(share, "launch"), glob("launch/*.py")),
+        (os.path.join(share, "config"), glob("config/*.yaml")),
+    ] + tree(os.path.join("data", "kth"), share),
+    install_requires=["setuptools", "numpy", "scipy"],
+    zip_safe=True,
+    maintainer="online_em_slam maintainers",
+    maintainer_email="maintainer@example.com",
+    description="Landmark SLAM by particle online EM (ROS 2 node and ROS-free core)",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "online_em_slam_node = online_em_slam.ros.node:main",
+            "online-em-slam = online_em_slam.cli:main",
+            "online-em-slam-convert = online_em_slam.kth.convert:main",
+            "online-em-slam-replay = online_em_slam.replay:main",
+            "beacon_extractor_node = online_em_slam.kth.beacon_node:main",
+            "online-em-slam-benchmark = online_em_slam.benchmark:main",
+        ],
+    },
+)

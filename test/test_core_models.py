@@ -1,0 +1,123 @@
+"""The observation and motion models, checked against their definitions."""
+import math
+
+import numpy as np
+import pytest
+
+from online_em_slam.core.angles import wrap_angle
+from online_em_slam.core.config import MotionConfig, ObservationNoiseConfig, SensorConfig
+from online_em_slam.core import motion
+from online_em_slam.core.observation import (innovation, inverse_observation, landmark_jacobian,
+                                             noise_covariance, noise_loglik, pose_jacobian,
+                                             predict_observation, sensor_poses)
+
+
+def numeric_jacobian(fun, x, eps=1e-6):
+    cols = []
+    for k in range(x.shape[0]):
+        dx = np.zeros_like(x)
+        dx[k] = eps
+        diff = fun(x + dx) - fun(x - dx)
+        diff[1] = wrap_angle(diff[1]) if diff.shape[0] > 1 else diff[1]
+        cols.append(diff / (2 * eps))
+    return np.stack(cols, axis=-1)
+
+
+def test_h_is_range_and_wrapped_bearing():
+    pose = np.array([1.0, 2.0, 0.5])
+    landmark = np.array([4.0, 6.0])
+    h = predict_observation(pose, landmark)
+    assert h[0] == pytest.approx(5.0)
+    assert h[1] == pytest.approx(math.atan2(4.0, 3.0) - 0.5)
+
+
+def test_landmark_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        pose = rng.normal(size=3) * [5, 5, 3]
+        landmark = pose[:2] + rng.normal(size=2) * 10
+        analytic = landmark_jacobian(pose, landmark)
+        numeric = numeric_jacobian(lambda th: predict_observation(pose, th), landmark)
+        np.testing.assert_allclose(analytic, numeric, rtol=1e-5, atol=1e-7)
+
+
+def test_pose_jacobian_with_sensor_offset_matches_finite_differences():
+    sensor = SensorConfig(offset_x=3.78, offset_y=0.5)
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        pose = rng.normal(size=3) * [5, 5, 3]
+        landmark = pose[:2] + rng.normal(size=2) * 15
+        analytic = pose_jacobian(pose, landmark, sensor)
+        numeric = numeric_jacobian(lambda x: predict_observation(sensor_poses(x, sensor), landmark), pose)
+        np.testing.assert_allclose(analytic, numeric, rtol=1e-5, atol=1e-6)
+
+
+def test_bearings_near_pi_are_wrapped():
+    pose = np.array([0.0, 0.0, 0.0])
+    above = predict_observation(pose, np.array([-10.0, 1e-9]))
+    below = predict_observation(pose, np.array([-10.0, -1e-9]))
+    assert abs(above[1]) <= math.pi and abs(below[1]) <= math.pi
+    nu = innovation(below.copy(), above)
+    assert abs(nu[1]) < 1e-6
+    assert wrap_angle(math.pi) == pytest.approx(math.pi)
+    assert wrap_angle(-math.pi) == pytest.approx(math.pi)
+    assert wrap_angle(3 * math.pi + 0.1) == pytest.approx(-math.pi + 0.1)
+
+
+def test_inverse_observation_inverts_h():
+    pose = np.array([2.0, -1.0, 2.5])
+    landmark = np.array([-7.0, 3.0])
+    np.testing.assert_allclose(inverse_observation(pose, predict_observation(pose, landmark)), landmark)
+
+
+def test_landmark_on_top_of_sensor_gives_finite_values():
+    pose = np.array([1.0, 1.0, 0.0])
+    H = landmark_jacobian(pose, pose[:2])
+    h = predict_observation(pose, pose[:2])
+    assert np.all(np.isfinite(H)) and np.all(np.isfinite(h))
+
+
+def test_mixture_likelihood_has_heavier_tails_and_responsibilities_sum_to_one():
+    gaussian = ObservationNoiseConfig()
+    mixture = ObservationNoiseConfig(model="mixture")
+    R = noise_covariance(gaussian, np.array([10.0]))
+    outlier = np.array([[5.0, 0.5]])
+    ll_g, _ = noise_loglik(gaussian, outlier, R)
+    ll_m, resp = noise_loglik(mixture, outlier, R)
+    assert ll_m[0] > ll_g[0]
+    assert resp.sum() == pytest.approx(1.0)
+    assert resp[0, 1] > 0.99  # an outlier is explained by the wide component
+
+
+def test_range_dependent_noise_grows_with_range():
+    noise = ObservationNoiseConfig(range_growth=0.01)
+    R = noise_covariance(noise, np.array([0.0, 100.0]))
+    assert R[1, 0, 0] == pytest.approx((0.5 + 1.0) ** 2)
+    assert R[0, 0, 0] == pytest.approx(0.25)
+    assert np.all(np.linalg.eigvalsh(R) > 0)
+
+
+@pytest.mark.parametrize("model,control", [("bicycle", (3.0, 0.2)), ("acfr", (2.0, 0.3)),
+                                           ("unicycle", (1.5, 0.4)), ("odometry", (0.3, 0.1, 0.05))])
+def test_motion_state_jacobian_matches_finite_differences(model, control):
+    config = MotionConfig(model=model, wheelbase=2.83, sigma_heading=0.01)
+    pose = np.array([[1.0, 2.0, 0.7]])
+    mean, F, Q = motion.propagate(config, pose, np.array(control), 0.1)
+    numeric = numeric_jacobian(lambda x: motion.propagate(config, x[None], np.array(control), 0.1)[0][0], pose[0])
+    np.testing.assert_allclose(F[0], numeric, rtol=1e-5, atol=1e-7)
+    assert np.all(np.linalg.eigvalsh(Q[0]) >= -1e-12)
+
+
+def test_acfr_model_moves_laser_point_as_the_dataset_model():
+    """The rear-axle pose plus the (a, b) lever arm obeys the README's laser-point ODE."""
+    config = MotionConfig(model="acfr", wheelbase=2.83, encoder_offset=0.76)
+    sensor = SensorConfig(offset_x=3.78, offset_y=0.5)
+    v_e, alpha, dt = 3.0, 0.2, 1e-4
+    pose = np.array([[0.0, 0.0, 0.4]])
+    new_pose, _, _ = motion.propagate(config, pose, np.array([v_e, alpha]), dt)
+    laser_rate = (sensor_poses(new_pose, sensor) - sensor_poses(pose, sensor))[0, :2] / dt
+    v_c = v_e / (1 - math.tan(alpha) * 0.76 / 2.83)
+    phi, a, b, L = 0.4, 3.78, 0.5, 2.83
+    expected = [v_c * math.cos(phi) - v_c / L * math.tan(alpha) * (a * math.sin(phi) + b * math.cos(phi)),
+                v_c * math.sin(phi) + v_c / L * math.tan(alpha) * (a * math.cos(phi) - b * math.sin(phi))]
+    np.testing.assert_allclose(laser_rate, expected, rtol=1e-3)

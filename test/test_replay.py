@@ -1,0 +1,210 @@
+"""online-em-slam-replay publishes every message of a bag to a subscriber in another process."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+# One DDS domain per test run (multi-process test: discovery must stay on, see docs/ROS.md).
+DOMAIN_ID = str(60 + os.getpid() % 40)
+os.environ["ROS_DOMAIN_ID"] = DOMAIN_ID
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+
+rclpy = pytest.importorskip("rclpy")
+
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+
+N_CONTROL = 400
+N_CLOUDS = 40
+
+
+def _write_small_bag(path):
+    """/control at 200 Hz (2 s) and /landmark_observations at 20 Hz, plus /tf_static."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from online_em_slam.cloud import OBSERVATION_FIELDS, encode
+    from online_em_slam.kth.beacons import observation_columns
+    from online_em_slam.kth.convert import jazzy_typestore
+
+    ts = jazzy_typestore()
+    T = ts.types
+    rng = np.random.default_rng(7)
+
+    def header(ns, frame):
+        sec, nsec = divmod(ns, 1_000_000_000)
+        return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
+                                        frame_id=frame)
+
+    V3 = T["geometry_msgs/msg/Vector3"]
+    events = []
+    for k in range(N_CONTROL):
+        ns = 10_000_000_000 + k * 5_000_000
+        msg = T["geometry_msgs/msg/TwistStamped"](
+            header=header(ns, "base_link"),
+            twist=T["geometry_msgs/msg/Twist"](linear=V3(x=float(k), y=0.0, z=0.0),
+                                               angular=V3(x=0.0, y=0.0, z=0.01 * k)))
+        events.append((ns, 1, "/control", "geometry_msgs/msg/TwistStamped", msg))
+    for k in range(N_CLOUDS):
+        ns = 10_000_000_000 + k * 50_000_000 + 1
+        n = int(rng.integers(0, 5))
+        specs, step, data = encode(observation_columns(rng.uniform(1, 30, n), rng.uniform(-1.5, 1.5, n)),
+                                   layout=OBSERVATION_FIELDS)
+        fields = [T["sensor_msgs/msg/PointField"](name=f.name, offset=f.offset, datatype=f.datatype,
+                                                  count=f.count) for f in specs]
+        msg = T["sensor_msgs/msg/PointCloud2"](header=header(ns, "laser"), height=1, width=n, fields=fields,
+                                               is_bigendian=False, point_step=step, row_step=step * n,
+                                               data=np.frombuffer(data, dtype=np.uint8).copy(), is_dense=True)
+        events.append((ns, 2, "/landmark_observations", "sensor_msgs/msg/PointCloud2", msg))
+    tf = T["geometry_msgs/msg/TransformStamped"](
+        header=header(10_000_000_000, "base_link"), child_frame_id="laser",
+        transform=T["geometry_msgs/msg/Transform"](translation=V3(x=3.78, y=0.5, z=0.0),
+                                                   rotation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0,
+                                                                                              z=0.0, w=1.0)))
+    events.append((10_000_000_000, 0, "/tf_static", "tf2_msgs/msg/TFMessage", T["tf2_msgs/msg/TFMessage"](
+        transforms=[tf])))
+    events.sort(key=lambda e: (e[0], e[1]))
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conns = {}
+        for _, _, topic, msgtype, _ in events:
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=ts)
+        for ns, _, topic, msgtype, msg in events:
+            writer.write(conns[topic], ns, ts.serialize_cdr(msg, msgtype))
+
+
+def _tf2_available() -> bool:
+    try:
+        import tf2_msgs.msg  # noqa: F401
+        return True
+    except ImportError:
+        return False
+
+
+def test_message_class_resolution():
+    from online_em_slam.replay import message_class, parse_wait
+    from sensor_msgs.msg import PointCloud2
+    assert message_class("sensor_msgs/msg/PointCloud2") is PointCloud2
+    assert message_class("sensor_msgs/PointCloud2") is PointCloud2
+    with pytest.raises(ValueError):
+        message_class("nonsense")
+    assert parse_wait(["/a:2", "/b"]) == {"/a": 2, "/b": 1}
+
+
+def test_replay_delivers_every_message(tmp_path):
+    from geometry_msgs.msg import TwistStamped
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import PointCloud2
+
+    from online_em_slam.cloud import decode_message
+
+    bag = tmp_path / "small"
+    _write_small_bag(bag)
+
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        node = rclpy.create_node("replay_test_sink", context=context)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        controls, clouds, clocks = [], [], []
+        node.create_subscription(TwistStamped, "/control", controls.append, qos)
+        node.create_subscription(PointCloud2, "/landmark_observations", clouds.append, qos)
+        node.create_subscription(Clock, "/clock", clocks.append, qos)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+
+        env = dict(os.environ, ROS_DOMAIN_ID=DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+        cmd = [sys.executable, "-m", "online_em_slam.replay", str(bag), "--rate", "0", "--clock",
+               "--wait-subscribers", "/control:1", "/landmark_observations:1", "/clock:1",
+               "--wait-timeout", "15", "--quiet"]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        deadline = time.monotonic() + 25
+        while time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+            if len(controls) >= N_CONTROL and len(clouds) >= N_CLOUDS and proc.poll() is not None:
+                break
+        # drain anything still queued
+        end = time.monotonic() + 0.3
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.02)
+        out, err = proc.communicate(timeout=10)
+    finally:
+        if "proc" in locals() and proc.poll() is None:
+            proc.kill()
+        rclpy.shutdown(context=context)
+
+    assert proc.returncode == 0, err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["published"]["/control"] == N_CONTROL
+    assert summary["published"]["/landmark_observations"] == N_CLOUDS
+    if _tf2_available():
+        assert summary["published"]["/tf_static"] == 1
+    else:
+        assert "/tf_static" in summary["skipped_topics"]
+
+    assert len(controls) == N_CONTROL and len(clouds) == N_CLOUDS
+    assert [m.twist.linear.x for m in controls] == [float(k) for k in range(N_CONTROL)]
+    assert controls[7].header.stamp.sec == 10 and controls[7].header.stamp.nanosec == 35_000_000
+    cols = decode_message(clouds[3], required=["range", "bearing", "id"])
+    assert np.all(cols["id"] == -1)
+    assert len(clocks) >= 1 and clocks[0].clock.sec == 10
+
+
+def test_beacon_node_publishes_observations():
+    """BeaconNode: LaserScan on `scan` -> PointCloud2 on `landmark_observations`, same header."""
+    from sensor_msgs.msg import LaserScan, PointCloud2
+
+    from online_em_slam.cloud import decode_message
+    from online_em_slam.kth.beacon_node import BeaconNode
+    from online_em_slam.kth.beacons import extract_beacons
+    from online_em_slam.kth.datasets import load_car_park
+
+    cp = load_car_park()
+    sc = cp.scans
+    k = next(i for i in range(len(sc))
+             if len(extract_beacons(sc.ranges[i], sc.intensities[i], sc.angle_min, sc.angle_increment)) >= 2)
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        node = BeaconNode(context=context)
+        sink = rclpy.create_node("beacon_sink", context=context)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        got = []
+        sink.create_subscription(PointCloud2, "landmark_observations", got.append, qos)
+        pub = sink.create_publisher(LaserScan, "scan", qos)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        executor.add_node(sink)
+        scan = LaserScan()
+        scan.header.frame_id = "laser"
+        scan.header.stamp.sec, scan.header.stamp.nanosec = 123, 456
+        scan.angle_min, scan.angle_increment = -np.pi / 2, np.deg2rad(0.5)
+        scan.angle_max = np.pi / 2
+        scan.range_min, scan.range_max = 0.0, 81.9
+        r = cp.scans.ranges[k].astype(np.float32)
+        r[cp.scans.ranges[k] >= 81.9] = np.inf
+        scan.ranges = r.tolist()
+        scan.intensities = cp.scans.intensities[k].astype(np.float32).tolist()
+        deadline = time.monotonic() + 10
+        while not got and time.monotonic() < deadline:
+            if pub.get_subscription_count() > 0:
+                pub.publish(scan)
+            executor.spin_once(timeout_sec=0.05)
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        rclpy.shutdown(context=context)
+    assert got, "no observation cloud received"
+    msg = got[0]
+    assert msg.header.frame_id == "laser" and (msg.header.stamp.sec, msg.header.stamp.nanosec) == (123, 456)
+    cols = decode_message(msg, required=["range", "bearing", "id", "range_std"])
+    ref = extract_beacons(cp.scans.ranges[k], cp.scans.intensities[k], -np.pi / 2, np.deg2rad(0.5))
+    assert len(ref) >= 2
+    np.testing.assert_allclose(cols["range"], ref.range, rtol=1e-5)
+    np.testing.assert_allclose(cols["bearing"], ref.bearing, atol=1e-5)
+    assert np.all(cols["id"] == -1) and np.all(cols["range_std"] == 0)
