@@ -35,7 +35,7 @@ setup(
     maintainer_email="maintainer@example.com",
     description="Landmark SLAM by particle online EM (ROS 2 node and ROS-free core)",
     license="Apache-2.0",
-    tests_require=["pytest"],
+    extras_require={"test": ["pytest"]},
     entry_points={
         "console_scripts": [
             "online_em_slam_node = online_em_slam.ros.node:main",

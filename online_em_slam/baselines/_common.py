@@ -65,50 +65,53 @@ class BaselineFilter:
         self._scan_count = 0
         self._reset_state(self._initial_pose.copy())
 
-    def add_control(self, stamp: float, control) -> None:
+    def add_control(self, stamp: float, control) -> bool:
         """Propagate to ``stamp`` with the held control, then hold ``control`` (zero-order hold)."""
         u = np.asarray(control, dtype=float).reshape(-1)
         if self.config.motion.model == "odometry":
-            self.drops["wrong_input"] += 1
-            return
-        if u.shape[0] < 2 or not np.all(np.isfinite(u)) or not math.isfinite(stamp):
-            self.drops["non_finite"] += 1
-            return
-        if not self._advance(float(stamp)):
-            return
+            self.drops["control_ignored_by_odometry_model"] += 1
+            return False
+        if u.shape[0] < 2 or not np.all(np.isfinite(u[:2])):
+            self.drops["non_finite_control"] += 1
+            return False
+        if not self._advance(stamp):
+            return False
         self._held_control = u[:2].copy()
+        return True
 
-    def add_odometry(self, stamp: float, odom_pose) -> None:
-        """Apply the body-frame increment from the previous odometry pose (motion.model == "odometry")."""
+    def add_odometry(self, stamp: float, odom_pose) -> bool:
+        """Apply the body-frame increment from the previous odometry pose (motion.model == "odometry").
+
+        With another motion model the pose is only remembered (and time advanced),
+        like the core, so switching sources later does not produce a jump.
+        """
         pose = np.asarray(odom_pose, dtype=float).reshape(-1)
-        if self.config.motion.model != "odometry":
-            self.drops["wrong_input"] += 1
-            return
-        if pose.shape[0] < 3 or not np.all(np.isfinite(pose[:3])) or not math.isfinite(stamp):
-            self.drops["non_finite"] += 1
-            return
+        if pose.shape[0] < 3 or not np.all(np.isfinite(pose[:3])):
+            self.drops["non_finite_odometry"] += 1
+            return False
+        if not self._accept_stamp(stamp):
+            return False
         stamp = float(stamp)
-        if self.last_stamp is not None and stamp < self.last_stamp:
-            self.drops["out_of_order"] += 1
-            return
-        dt = 0.0 if self.last_stamp is None else stamp - self.last_stamp
-        if self._last_odometry is not None:
+        if self.config.motion.model == "odometry" and self._last_odometry is not None:
+            dt = 0.0 if self.last_stamp is None else stamp - self.last_stamp
             self._predict(odometry_increment(self._last_odometry, pose[:3]), max(dt, 1e-6))
         self._last_odometry = pose[:3].copy()
-        self.last_stamp = stamp
+        return self._advance(stamp)
 
     def add_observations(self, stamp: float, observations: Observations) -> StepReport:
         """Propagate to ``stamp``, then update with the scan; returns what was done."""
         start = time.perf_counter()
         report = StepReport(n_observations=len(observations), dropped={})
-        if not math.isfinite(stamp) or not self._advance(float(stamp), report):
+        if not self._advance(stamp):
+            report.dropped["out_of_order"] = len(observations) or 1
             report.duration = time.perf_counter() - start
             return report
         sensor = self.config.sensor
         good = np.isfinite(observations.ranges) & np.isfinite(observations.bearings)
-        self._count(report, "non_finite", int(np.sum(~good)))
+        good &= observations.ranges >= 0
+        self._count(report, "invalid_observation", int(np.sum(~good)))
         in_range = good & (observations.ranges >= sensor.min_range) & (observations.ranges <= sensor.max_range)
-        self._count(report, "out_of_range", int(np.sum(good & ~in_range)))
+        self._count(report, "observation_out_of_range", int(np.sum(good & ~in_range)))
         kept = observations.subset(in_range)
         kept.bearings = wrap_angle(kept.bearings)
         R = noise_covariance(self.config.noise, kept.ranges, kept.range_std, kept.bearing_std)
@@ -125,23 +128,34 @@ class BaselineFilter:
         if report is not None:
             report.dropped[reason] = report.dropped.get(reason, 0) + n
 
-    def _advance(self, stamp: float, report: StepReport | None = None) -> bool:
+    def _accept_stamp(self, stamp: float) -> bool:
+        """Finite and not older than the last processed stamp (else counted, as in the core)."""
+        if not math.isfinite(stamp):
+            self.drops["non_finite_stamp"] += 1
+            return False
+        if self.last_stamp is not None and stamp < self.last_stamp:
+            self.drops["out_of_order"] += 1
+            return False
+        return True
+
+    def _advance(self, stamp: float) -> bool:
         """Propagate from ``last_stamp`` to ``stamp`` with the held control.
 
-        False (and counted) when the stamp goes backwards.  Gaps longer than
+        False (and counted) for a bad stamp.  The gap is integrated in
+        sub-steps of at most ``max_step``; gaps longer than
         ``max_prediction_interval`` are clipped to it (counted), because
         extrapolating a held control over a long gap is not credible.
         """
+        if not self._accept_stamp(stamp):
+            return False
+        stamp = float(stamp)
         if self.last_stamp is None:
             self.last_stamp = stamp
             return True
         dt = stamp - self.last_stamp
-        if dt < 0:
-            self._count(report, "out_of_order")
-            return False
         motion = self.config.motion
         if dt > motion.max_prediction_interval:
-            self._count(report, "large_time_step")
+            self.drops["large_time_step_clipped"] += 1
             dt = motion.max_prediction_interval
         if dt > 0 and self._held_control is not None and motion.model != "odometry":
             n, h = prediction_substeps(dt, motion.max_step)
@@ -263,6 +277,6 @@ def plan_associations(observations: Observations, book: LandmarkBook, predicted_
                 create_obs.append(o)
                 create_ids.append(None)
             elif a == AMBIGUOUS:
-                drop(report, "ambiguous")
+                drop(report, "ambiguous_association")
     return (np.asarray(update_obs, dtype=np.int64), np.asarray(update_slots, dtype=np.int64),
             np.asarray(create_obs, dtype=np.int64), create_ids)

@@ -82,6 +82,7 @@ class OnlineEMSlam:
         self._created = np.zeros(0, dtype=np.int64)
         self._confirmed = np.zeros(0, dtype=bool)
         self._stats = np.zeros((0, STAT_DIM))          # smoothed statistic S_k of the last M-step
+        self._spread = np.zeros((0, 2, 2))             # pose-induced landmark covariance (SA average)
         self._tau = np.zeros((n, 0, STAT_DIM))         # per-particle auxiliary statistics
         # Block Online EM state.
         self._block_index = 1
@@ -208,6 +209,7 @@ class OnlineEMSlam:
         self._created = np.concatenate([self._created, np.full(k, self._step, dtype=np.int64)])
         self._confirmed = np.concatenate([self._confirmed, np.zeros(k, dtype=bool)])
         self._stats = np.vstack([self._stats, np.zeros((k, STAT_DIM))])
+        self._spread = np.concatenate([self._spread, np.zeros((k, 2, 2))])
         self._tau = np.concatenate([self._tau, np.zeros((n, k, STAT_DIM))], axis=1)
         self._block_count = np.concatenate([self._block_count, np.zeros(k, dtype=np.int64)])
         self._avg_stats = np.vstack([self._avg_stats, np.zeros((k, STAT_DIM))])
@@ -216,7 +218,7 @@ class OnlineEMSlam:
 
     def _keep_landmarks(self, keep: np.ndarray) -> None:
         for name in ("_theta", "_ids", "_count", "_inv_n", "_n_obs", "_created", "_confirmed",
-                     "_stats", "_block_count", "_avg_stats", "_avg_count"):
+                     "_stats", "_spread", "_block_count", "_avg_stats", "_avg_count"):
             setattr(self, name, getattr(self, name)[keep])
         self._tau = self._tau[:, keep]
 
@@ -226,7 +228,10 @@ class OnlineEMSlam:
         return list(range(start, start + k))
 
     def _landmark_covariances(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
-        return information_covariance(self._stats[rows], self._inv_n[rows])
+        """Map uncertainty: measurement part q A^-1 plus the spread of the
+        per-particle solutions A_i^-1 b_i, which carries the pose uncertainty
+        under which the landmark was observed, blended with the same step sizes."""
+        return information_covariance(self._stats[rows], self._inv_n[rows]) + self._spread[rows]
 
     # ------------------------------------------------------------------ filter step
     def _filter_step(self, obs: Observations | None, report: StepReport | None = None) -> None:
@@ -250,7 +255,7 @@ class OnlineEMSlam:
         sensor = sensor_poses(particles, cfg.sensor)
         if obs is not None and len(obs):
             pairs_obs, pairs_lm = self._associate(obs, sensor, np.exp(log_prior - log_prior.max()), report)
-        stats_new = None
+        stats_new = spread_new = None
         if pairs_obs.size:
             y = np.stack([obs.ranges[pairs_obs], obs.bearings[pairs_obs]], axis=-1)        # (P, 2)
             R = noise_covariance(cfg.noise, obs.ranges[pairs_obs],
@@ -272,6 +277,7 @@ class OnlineEMSlam:
             R_inv, _ = inv_det_2x2(R)
             precision = R_inv[None] * component_precision_weight(cfg.noise, resp)[..., None, None]
             stats_new = observation_statistics(H, precision, nu, theta_bar[None])          # (N, P, 5)
+            spread_new = self._inverse_observation_spread(sensor, y, weights_prior=np.exp(log_prior - log_prior.max()))
             self._n_obs[pairs_lm] += 1
             report.n_associated = int(pairs_obs.size)
 
@@ -285,9 +291,9 @@ class OnlineEMSlam:
 
         # 4. EM: blend (online) or accumulate (block) the new statistics, then the M-step.
         if cfg.em.algorithm == "online":
-            self._online_em_update(pairs_lm, stats_new, weights)
+            self._online_em_update(pairs_lm, stats_new, spread_new, weights)
         else:
-            self._block_em_update(pairs_lm, stats_new, weights)
+            self._block_em_update(pairs_lm, stats_new, spread_new, weights)
 
         # 5. New anchors for the next transition.
         self._particles = particles
@@ -300,6 +306,18 @@ class OnlineEMSlam:
         self._step += 1
         report.n_pruned = self._prune_tentative()
 
+    def _inverse_observation_spread(self, sensor: np.ndarray, y: np.ndarray, weights_prior: np.ndarray) -> np.ndarray:
+        """Weighted covariance over particles of inverse_observation(sensor_i, y): (P, 2, 2).
+
+        It is how far the landmark position implied by one observation moves
+        with the pose uncertainty at that time; pose errors are correlated over
+        a pass, so it is averaged, not divided by the number of observations.
+        """
+        w = weights_prior / weights_prior.sum()
+        points = inverse_observation(sensor[:, None, :], y[None])                         # (N, P, 2)
+        dev = points - np.einsum("n,npi->pi", w, points)[None]
+        return np.einsum("n,npi,npj->pij", w, dev, dev)
+
     def _smooth(self, tau_prev, log_w_prev, trans_cov, particles, ancestors) -> np.ndarray:
         smoother = self.config.filter.smoother
         if smoother == "ancestry":
@@ -311,22 +329,26 @@ class OnlineEMSlam:
         kernel = backward_kernel(log_w_prev, self._pred_mean, trans_cov, particles)
         return forward_smooth(tau_prev, kernel)
 
-    def _online_em_update(self, rows: np.ndarray, stats_new, weights: np.ndarray) -> None:
+    def _online_em_update(self, rows: np.ndarray, stats_new, spread_new, weights: np.ndarray) -> None:
         """tau <- (1 - gamma_n) tau + gamma_n s for the observed landmarks, gamma_n = n^-alpha."""
         em = self.config.em
         if rows.size:
             self._count[rows] += 1
             gamma = self._count[rows].astype(float) ** (-em.step_size_exponent)
             self._tau[:, rows] = (1.0 - gamma)[None, :, None] * self._tau[:, rows] + gamma[None, :, None] * stats_new
+            self._spread[rows] = (1.0 - gamma)[:, None, None] * self._spread[rows] + gamma[:, None, None] * spread_new
             self._inv_n[rows] = (1.0 - gamma) ** 2 * self._inv_n[rows] + gamma ** 2
         if self._tau.shape[1]:
             stats = np.einsum("n,nmk->mk", weights, self._tau)
             self._apply_m_step(stats, self._count >= em.min_updates_before_mstep)
 
-    def _block_em_update(self, rows: np.ndarray, stats_new, weights: np.ndarray) -> None:
+    def _block_em_update(self, rows: np.ndarray, stats_new, spread_new, weights: np.ndarray) -> None:
         """Block Online EM: theta fixed within a block, statistics summed, M-step at block end."""
         em = self.config.em
         if rows.size:
+            # Running mean of the pose-induced spread over all observations.
+            share = 1.0 / (self._count[rows] + self._block_count[rows] + 1.0)
+            self._spread[rows] += share[:, None, None] * (spread_new - self._spread[rows])
             self._tau[:, rows] += stats_new
             self._block_count[rows] += 1
             fresh = self._count[rows] == 0
@@ -515,7 +537,7 @@ class OnlineEMSlam:
 
     # ------------------------------------------------------------------ persistence
     _MAP_FIELDS = ("_theta", "_ids", "_count", "_inv_n", "_n_obs", "_confirmed", "_stats",
-                   "_avg_stats", "_avg_count")
+                   "_spread", "_avg_stats", "_avg_count")
 
     def save_map(self, path: str) -> None:
         """Write map, statistics and counts atomically (temporary file + rename)."""

@@ -79,6 +79,16 @@ def information_covariance(stats: np.ndarray, inverse_sample_size: np.ndarray) -
     return cov * inverse_sample_size[..., None, None]
 
 
+def particle_spread(tau: np.ndarray, weights: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Weighted covariance (M, 2, 2) of the per-particle M-step solutions A_i^-1 b_i around theta.
+
+    Particles whose statistic is singular contribute nothing.
+    """
+    per_particle, ok = m_step(tau)                                   # (N, M, 2)
+    dev = np.where(ok[..., None], per_particle - theta[None], 0.0)
+    return np.einsum("n,nmi,nmj->mij", weights, dev, dev)
+
+
 def backward_kernel(log_weights_prev: np.ndarray, means: np.ndarray, covariances: np.ndarray,
                     particles: np.ndarray) -> np.ndarray:
     """beta_t(i, j) ∝ w_{t-1}^j m(xi_{t-1}^j, xi_t^i), rows normalised: (N_t, N_{t-1}).

@@ -93,7 +93,9 @@ def observations_to_cloud(header: Header, ranges, bearings, ids=None, range_std=
     ranges = np.asarray(ranges, dtype=float)
     bearings = np.asarray(bearings, dtype=float)
     n = ranges.shape[0]
-    columns = {"x": ranges * np.cos(bearings), "y": ranges * np.sin(bearings), "z": np.zeros(n),
+    with np.errstate(invalid="ignore"):      # non-finite inputs stay non-finite (tests, fuzzing)
+        x, y = ranges * np.cos(bearings), ranges * np.sin(bearings)
+    columns = {"x": x, "y": y, "z": np.zeros(n),
                "range": ranges, "bearing": bearings,
                "id": np.full(n, -1) if ids is None else np.asarray(ids),
                "range_std": np.full(n, np.nan) if range_std is None else np.asarray(range_std),

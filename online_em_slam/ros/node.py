@@ -106,6 +106,7 @@ class OnlineEmSlamNode(Node):
         self._buffer: list = []
         self._seq = 0
         self._newest: float | None = None
+        self._newest_by_kind: dict[int, float] = {}
         self._last_processed: float | None = None
         self._last_motion_stamp: dict[int, float] = {}
         self._motion_seen = False
@@ -228,6 +229,11 @@ class OnlineEmSlamNode(Node):
         return self._slam
 
     @property
+    def inputs_received(self) -> int:
+        """Well-formed inputs received (processed, queued or dropped after decoding)."""
+        return self._inputs
+
+    @property
     def paused(self) -> bool:
         return self._paused
 
@@ -285,9 +291,12 @@ class OnlineEmSlamNode(Node):
             return
         self._check_clock_jump()
         s = self._settings
-        if (s.reset_on_time_jump and self._newest is not None
-                and stamp < self._newest - s.time_jump_threshold):
-            self._reset(f"{_KIND_NAME[kind]} stamp jumped back {self._newest - stamp:.3f} s")
+        # A jump back is judged per input stream: streams lagging each other are reordered
+        # (input_delay) or dropped as out_of_order, never mistaken for a restart.
+        previous = self._newest_by_kind.get(kind)
+        if s.reset_on_time_jump and previous is not None and stamp < previous - s.time_jump_threshold:
+            self._reset(f"{_KIND_NAME[kind]} stamp jumped back {previous - stamp:.3f} s")
+        self._newest_by_kind[kind] = max(stamp, self._newest_by_kind.get(kind, stamp))
         if self._last_processed is not None and stamp < self._last_processed:
             self._drop("out_of_order")
             self.get_logger().warning(
@@ -378,6 +387,10 @@ class OnlineEmSlamNode(Node):
             if ps is not None and (not self._path or self._path[-1].header.stamp != ps.header.stamp):
                 self._path.append(ps)
         odom_pose = self._odom_at(stamp)
+        if odom_pose is None and self._settings.publish_tf:
+            self.get_logger().warning(
+                f"no recent odometry on {self._settings.odom_topic!r} at {stamp:.3f} s: map -> odom not updated",
+                throttle_duration_sec=30.0)
         if odom_pose is not None:
             map_to_odom = conv.pose2d_compose(estimate.mean, conv.pose2d_inverse(odom_pose))
             if np.all(np.isfinite(map_to_odom)):
@@ -525,6 +538,7 @@ class OnlineEmSlamNode(Node):
                 self._slam.reset(initial_pose=s.initial_pose, stamp=None)
             self._buffer.clear()
             self._newest = self._last_processed = None
+            self._newest_by_kind.clear()
             self._last_motion_stamp.clear()
             self._motion_seen = False
             self._odom_history.clear()

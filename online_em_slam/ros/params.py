@@ -150,11 +150,12 @@ NODE_SPECS = (
               "bag replay; needs reliable publishers) or best_effort (matches every publisher).",
               choices=RELIABILITIES, read_only=True),
     ParamSpec("input_qos.depth", 1000, "Input queue depth.", 1, 100000, read_only=True),
-    ParamSpec("input_delay", 0.0, "Inputs are buffered this long (s, in stamp time) and processed in "
-              "stamp order, so observations that arrive after later odometry are still used.", 0.0, 10.0),
+    ParamSpec("input_delay", 0.2, "Inputs are buffered this long (s, in stamp time) and processed in "
+              "stamp order, so observations that arrive after later odometry are still used "
+              "(0: process each input on arrival).", 0.0, 10.0),
     ParamSpec("reset_on_time_jump", True, "Reset when the clock or the input stamps jump back."),
     ParamSpec("time_jump_threshold", 1.0, "A backward jump of more than this (s) resets; smaller "
-              "backward steps are dropped as out_of_order.", 0.01, 1e6),
+              "backward steps are dropped as out_of_order.", 0.01, 1e6, read_only=True),
     ParamSpec("map_file", "~/.ros/online_em_slam_map.npz", "File of ~/save_map and ~/load_map."),
     ParamSpec("load_map_on_start", False, "Load map_file at start-up."),
     ParamSpec("initial_pose.x", 0.0, "Initial pose x in the map frame (m).", -1e7, 1e7),
@@ -186,7 +187,7 @@ class NodeSettings:
     observations_topic: str = "landmark_observations"
     input_reliability: str = "reliable"
     input_depth: int = 1000
-    input_delay: float = 0.0
+    input_delay: float = 0.2
     reset_on_time_jump: bool = True
     time_jump_threshold: float = 1.0
     map_file: str = ""
@@ -266,7 +267,8 @@ def declare_parameters(node) -> None:
         try:
             node.declare_parameter(spec.name, spec.default, descriptor(spec))
         except ParameterException as error:
-            raise ParameterError(f"{spec.name}: {error.args[0] if error.args else error}") from None
+            message = str(error).removesuffix(f": {spec.name}")
+            raise ParameterError(f"invalid parameter {spec.name}: {message}") from None
 
 
 def current_values(node) -> dict[str, Any]:
