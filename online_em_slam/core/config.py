@@ -190,6 +190,11 @@ class AssociationConfig:
                                observations; unconfirmed ones older than
                                ``tentative_timeout`` observation steps are pruned.
     min_observations_for_weighting: landmarks seen fewer times do not weight particles.
+    gate_position_std / gate_heading_std: extra pose uncertainty (m, rad) added to
+                               the innovation covariance of the association gate only.
+                               The particle cloud measures the pose relative to the map;
+                               drift accumulated before a loop closure is not in it, and
+                               without this margin a revisited landmark is created twice.
     """
 
     gate_probability: float = 0.99
@@ -198,6 +203,8 @@ class AssociationConfig:
     tentative_timeout: int = 20
     min_observations_for_weighting: int = 2
     max_landmarks: int = 5000
+    gate_position_std: float = 0.0
+    gate_heading_std: float = 0.0
 
     def validate(self, prefix: str = "association") -> None:
         _check_range(f"{prefix}.gate_probability", self.gate_probability, 0.0, 1.0, low_open=True)
@@ -209,6 +216,8 @@ class AssociationConfig:
         _check_range(f"{prefix}.tentative_timeout", self.tentative_timeout, 1, 1000000)
         _check_range(f"{prefix}.min_observations_for_weighting", self.min_observations_for_weighting, 1, 1000)
         _check_range(f"{prefix}.max_landmarks", self.max_landmarks, 1, 1000000)
+        _check_range(f"{prefix}.gate_position_std", self.gate_position_std, 0.0, 100.0)
+        _check_range(f"{prefix}.gate_heading_std", self.gate_heading_std, 0.0, 3.2)
 
 
 @dataclass

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .angles import wrap_angle
-from .config import (FilterConfig, MotionConfig, ObservationNoiseConfig, SensorConfig,
+from .config import (AssociationConfig, FilterConfig, MotionConfig, ObservationNoiseConfig, SensorConfig,
                      SlamConfig)
 from .observation import noise_covariance, predict_observation
 from .types import Observations
@@ -225,13 +225,19 @@ def simulate(cfg: ScenarioConfig | None = None) -> Scenario:
 def slam_config_for(scenario: Scenario | ScenarioConfig, num_particles: int = 100,
                     seed: int | None = 0) -> SlamConfig:
     """Core configuration whose models match the simulator: bicycle (wheelbase B),
-    per-step control noise = the simulated one (noise_reference_period = dt), R and range."""
+    per-step control noise = the simulated one (noise_reference_period = dt), R and range.
+
+    The association gate gets a 2 m / 0.05 rad pose margin: the drift accumulated
+    over a lap (several metres before the first loop closure) is otherwise
+    outside the gate and revisited landmarks would be created twice."""
     cfg = scenario.config if isinstance(scenario, Scenario) else scenario
     motion = MotionConfig(model="bicycle", wheelbase=cfg.wheelbase, sigma_speed=cfg.sigma_speed,
                           sigma_steering=cfg.sigma_steering, noise_reference_period=cfg.dt)
     sensor = SensorConfig(max_range=cfg.max_range)
     filt = FilterConfig(num_particles=num_particles, seed=seed)
-    return SlamConfig(motion=motion, sensor=sensor, noise=noise_config(cfg), filter=filt).validate()
+    association = AssociationConfig(gate_position_std=2.0, gate_heading_std=0.05)
+    return SlamConfig(motion=motion, sensor=sensor, noise=noise_config(cfg), filter=filt,
+                      association=association).validate()
 
 
 def feed(estimator, step: SimStep):

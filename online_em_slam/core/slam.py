@@ -485,8 +485,9 @@ class OnlineEMSlam:
     def _predicted_measurements(self, sensor, w, rows, obs: Observations, unknown):
         """Moment-matched predicted measurement and innovation covariance per (obs, landmark).
 
-        S = spread of h over particles + H Sigma_theta H^T + R: pose and map
-        uncertainty both widen the gate.
+        S = spread of h over particles + H (Sigma_theta + gate margin) H^T + R:
+        pose and map uncertainty both widen the gate (dh/dp = -dh/dtheta, so a
+        position margin enters like map uncertainty).
         """
         theta = self._theta[rows]
         h = predict_observation(sensor[:, None, :], theta[None])                         # (N, K, 2)
@@ -497,8 +498,10 @@ class OnlineEMSlam:
         dev[..., 1] = wrap_angle(dev[..., 1])
         spread = np.einsum("n,nki,nkj->kij", w, dev, dev)
         H = landmark_jacobian(weighted_pose_mean(sensor, w)[None], theta)                # (K, 2, 2)
-        map_cov = self._landmark_covariances(rows)
+        assoc = self.config.association
+        map_cov = self._landmark_covariances(rows) + assoc.gate_position_std ** 2 * np.eye(2)
         spread = spread + H @ map_cov @ np.swapaxes(H, -1, -2)
+        spread[:, 1, 1] += assoc.gate_heading_std ** 2
         R = noise_covariance(self.config.noise, obs.ranges[unknown],
                              None if obs.range_std is None else obs.range_std[unknown],
                              None if obs.bearing_std is None else obs.bearing_std[unknown])

@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
+if TYPE_CHECKING:   # rcl_interfaces is imported where it is used, so build() works without ROS
+    from rcl_interfaces.msg import ParameterDescriptor
 
 from ..core.config import (EM_ALGORITHMS, MOTION_MODELS, NOISE_MODELS, SMOOTHERS, SlamConfig)
 
@@ -232,6 +232,8 @@ def all_specs() -> list[ParamSpec]:
 
 def descriptor(spec: ParamSpec) -> ParameterDescriptor:
     """ParameterDescriptor with type, description, range and choices of ``spec``."""
+    from rcl_interfaces.msg import (FloatingPointRange, IntegerRange,  # noqa: PLC0415
+                                    ParameterDescriptor, ParameterType)
     d = ParameterDescriptor(name=spec.name, description=spec.description, read_only=spec.read_only)
     value = spec.default
     if isinstance(value, bool):

@@ -1,0 +1,29 @@
+# One-command set-up: `make demo` creates .venv, installs everything and runs the
+# Car Park demo; `make test` runs the test suite (what CI runs).
+VENV ?= .venv
+PYTHON ?= python3
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test benchmark install clean
+
+$(STAMP): requirements.txt setup.py
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -r requirements.txt
+	$(PY) -m pip install -q --no-deps -e .
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	$(PY) -m online_em_slam.demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q test
+
+benchmark: $(STAMP)
+	$(PY) -m online_em_slam.benchmark --runs 20 --particles 100 --output results/benchmark
+
+clean:
+	rm -rf $(VENV) out results build *.egg-info

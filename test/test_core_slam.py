@@ -1,0 +1,150 @@
+"""The online EM estimator end to end on the seed's simulated experiment."""
+import numpy as np
+import pytest
+from scipy.optimize import linear_sum_assignment
+
+from online_em_slam.core import Observations, OnlineEMSlam, SlamConfig
+from online_em_slam.core.simulator import ScenarioConfig, feed, landmark_rmse, simulate, slam_config_for
+
+
+def dead_reckoning_map_rmse(scenario):
+    """Landmark error of mapping with odometry alone (first sighting, no correction): the 'no SLAM' level."""
+    config = slam_config_for(scenario)
+    from online_em_slam.core.motion import propagate
+    pose = scenario.initial_pose[None]
+    first = {}
+    for step in scenario.steps:
+        pose, _, _ = propagate(config.motion, pose, step.control, scenario.config.dt)
+        for r, b, i in zip(step.ranges, step.bearings, step.true_ids):
+            first.setdefault(int(i), pose[0, :2] + r * np.array([np.cos(pose[0, 2] + b), np.sin(pose[0, 2] + b)]))
+    ids = np.array(sorted(first))
+    return landmark_rmse(ids, np.array([first[i] for i in ids]), scenario.landmarks)
+
+
+def run(scenario, **sections):
+    config = slam_config_for(scenario)
+    for section, values in sections.items():
+        for key, value in values.items():
+            setattr(getattr(config, section), key, value)
+    slam = OnlineEMSlam(config, initial_pose=scenario.initial_pose, stamp=0.0)
+    for step in scenario.steps:
+        report = feed(slam, step)
+        assert np.all(np.isfinite(slam.pose().mean))
+    return slam, report
+
+
+@pytest.fixture(scope="module")
+def known_scenario():
+    return simulate(ScenarioConfig(seed=0, n_steps=1500))
+
+
+def test_known_association_map_converges(known_scenario):
+    """Seed 0, 1500 steps, N = 100.  Thresholds: the GTSAM batch optimum averages
+    1.5 m over seeds and single observations at 30 m have 1.5 m lateral std;
+    we ask for 1.5 m (measured 0.88 m) and a third of the dead-reckoning map error."""
+    slam, _ = run(known_scenario)
+    lm = slam.landmarks()
+    assert len(lm) == 20 and np.all(lm.confirmed)
+    rmse = landmark_rmse(lm.ids, lm.positions, known_scenario.landmarks)
+    assert rmse < 1.5
+    assert rmse < dead_reckoning_map_rmse(known_scenario) / 3
+    assert np.all(np.isfinite(lm.covariances)) and np.all(np.linalg.eigvalsh(lm.covariances) > 0)
+
+
+def test_unknown_association_finds_every_landmark_once():
+    scenario = simulate(ScenarioConfig(seed=0, n_steps=1500, known_ids=False))
+    slam, _ = run(scenario)
+    lm = slam.landmarks(confirmed_only=True)
+    assert len(lm) == 20, "every landmark found, no duplicates"
+    distances = np.linalg.norm(lm.positions[:, None] - scenario.landmarks[None], axis=-1)
+    rows, cols = linear_sum_assignment(distances)
+    assert np.sqrt(np.mean(distances[rows, cols] ** 2)) < 1.5
+    assert distances[rows, cols].max() < 3.0
+
+
+@pytest.mark.parametrize("smoother", ["paris", "ancestry"])
+@pytest.mark.parametrize("algorithm", ["online", "block_averaged"])
+def test_every_smoother_and_em_variant_maps_a_short_run(smoother, algorithm):
+    scenario = simulate(ScenarioConfig(seed=1, n_steps=300))
+    slam, _ = run(scenario, filter={"smoother": smoother}, em={"algorithm": algorithm, "block_initial_length": 10})
+    lm = slam.landmarks()
+    assert landmark_rmse(lm.ids, lm.positions, scenario.landmarks) < dead_reckoning_map_rmse(scenario)
+
+
+def test_outliers_with_mixture_noise_do_not_break_the_map():
+    scenario = simulate(ScenarioConfig(seed=0, n_steps=600, outlier_probability=0.1))
+    slam, _ = run(scenario)      # slam_config_for picks the mixture noise
+    assert slam.config.noise.model == "mixture"
+    lm = slam.landmarks()
+    assert np.all(np.isfinite(lm.positions))
+    assert landmark_rmse(lm.ids, lm.positions, scenario.landmarks) < dead_reckoning_map_rmse(scenario)
+
+
+def test_seeded_runs_are_deterministic():
+    scenario = simulate(ScenarioConfig(seed=2, n_steps=100))
+    a, _ = run(scenario)
+    b, _ = run(scenario)
+    np.testing.assert_array_equal(a.landmarks().positions, b.landmarks().positions)
+    np.testing.assert_array_equal(a.pose().mean, b.pose().mean)
+
+
+def test_memory_does_not_grow_with_time():
+    """Once every landmark is mapped (after the first lap), the state size is constant."""
+    scenario = simulate(ScenarioConfig(seed=0, n_steps=1000))
+    slam = OnlineEMSlam(slam_config_for(scenario), initial_pose=scenario.initial_pose, stamp=0.0)
+    sizes = []
+    for k, step in enumerate(scenario.steps):
+        feed(slam, step)
+        if k in (700, 999):
+            sizes.append(sum(v.nbytes for v in vars(slam).values() if isinstance(v, np.ndarray)))
+    assert sizes[0] == sizes[1]
+
+
+def test_bad_inputs_are_dropped_and_counted_not_raised():
+    slam = OnlineEMSlam(SlamConfig(), stamp=0.0)
+    slam.add_control(0.0, (1.0, 0.0))
+    assert not slam.add_control(0.1, (np.nan, 0.0))
+    report = slam.add_observations(1.0, Observations([np.nan, -1.0, 5.0, 1e6, np.inf], [0.0, 0.0, np.nan, 0.0, 0.1]))
+    assert report.dropped["invalid_observation"] == 4 and report.dropped["observation_out_of_range"] == 1
+    report = slam.add_observations(0.5, Observations([5.0], [0.0]))
+    assert slam.drops["out_of_order"] == 1
+    slam.add_control(1e5, (1.0, 0.1))            # a huge time step is clipped, not integrated
+    assert slam.drops["large_time_step_clipped"] >= 1
+    # An observation on top of the robot and an empty scan.
+    slam.add_observations(1e5 + 1, Observations([0.0, 3.0], [0.0, 0.0], [7, 7]))
+    slam.add_observations(1e5 + 2, Observations([], []))
+    assert slam.drops["duplicate_id"] == 1
+    assert np.all(np.isfinite(slam.pose().mean)) and np.all(np.isfinite(slam.pose().covariance))
+    lm = slam.landmarks()
+    assert np.all(np.isfinite(lm.positions)) and np.all(np.isfinite(lm.covariances))
+
+
+def test_degenerate_weights_recover_without_nan():
+    """Every particle explains an observation with likelihood ~0: weights fall back, no NaN."""
+    config = SlamConfig()
+    config.association.min_observations_for_weighting = 1
+    slam = OnlineEMSlam(config, stamp=0.0)
+    slam.add_observations(0.1, Observations([10.0], [0.0], [0]))
+    slam.add_observations(0.2, Observations([10.0], [0.0], [0]))
+    slam.add_observations(0.3, Observations([1e3 - 1], [3.1], [0]))
+    poses, weights = slam.particles()
+    assert np.all(np.isfinite(poses)) and np.isclose(weights.sum(), 1.0)
+    assert np.all(np.isfinite(slam.landmarks().positions))
+
+
+def test_save_and_load_map_continue_estimation(tmp_path, known_scenario):
+    scenario = simulate(ScenarioConfig(seed=0, n_steps=200))
+    slam, _ = run(scenario)
+    path = tmp_path / "map.npz"
+    slam.save_map(path)
+    before = slam.landmarks()
+    slam.reset()
+    assert len(slam.landmarks()) == 0
+    slam.load_map(path)
+    after = slam.landmarks()
+    np.testing.assert_array_equal(before.positions, after.positions)
+    np.testing.assert_array_equal(before.ids, after.ids)
+    np.testing.assert_allclose(before.covariances, after.covariances)
+    report = slam.add_observations(slam.last_stamp + 0.2 if slam.last_stamp else 0.2,
+                                   scenario.steps[10].observations())
+    assert report.n_created == 0 and report.n_associated > 0
