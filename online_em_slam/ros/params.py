@@ -113,6 +113,10 @@ _CORE = {
                                                    (1, 1000)),
     "association.max_landmarks": ("Map size limit; further new landmarks are dropped (map_full).",
                                   (1, 1000000)),
+    "association.gate_position_std": ("Extra pose position std (m) in the association gate only: drift "
+                                      "accumulated before a loop closure, so revisited landmarks are "
+                                      "re-associated instead of duplicated.", (0.0, 100.0)),
+    "association.gate_heading_std": ("Extra heading std (rad) in the association gate only.", (0.0, 3.2)),
 }
 
 _CHOICES = {
