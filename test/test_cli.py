@@ -1,0 +1,123 @@
+"""Offline runner (online-em-slam run/compare) on the converted Car Park bag, and param files."""
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from online_em_slam import cli
+from online_em_slam.paramfile import ParamFileError, config_from_params, load_params
+
+ROOT = Path(__file__).resolve().parent.parent
+CAR_PARK_PARAMS = ROOT / "config" / "car_park.yaml"
+
+
+@pytest.fixture(scope="module")
+def car_park_bag(tmp_path_factory):
+    from online_em_slam.kth.convert import convert
+    bag = tmp_path_factory.mktemp("bags") / "car_park"
+    convert("car_park", bag, progress=False)
+    return bag
+
+
+def _header(path):
+    with open(path, newline="") as handle:
+        return next(csv.reader(handle))
+
+
+def test_run_writes_outputs_and_is_deterministic(car_park_bag, tmp_path):
+    out_a, out_b = tmp_path / "a", tmp_path / "b"
+    common = [str(car_park_bag), "--params", str(CAR_PARK_PARAMS), "--seed", "3"]
+    assert cli.main(["run", *common, "--output", str(out_a)]) == 0
+    assert cli.main(["run", *common, "--output", str(out_b), "--no-plot"]) == 0
+
+    assert _header(out_a / "trajectory.csv") == ["t", "x", "y", "yaw"]
+    assert _header(out_a / "landmarks.csv") == ["id", "x", "y", "cov_xx", "cov_xy", "cov_yy", "n_obs"]
+    assert (out_a / "map.png").stat().st_size > 10_000 and not (out_b / "map.png").exists()
+    # same seed -> identical outputs
+    assert (out_a / "trajectory.csv").read_text() == (out_b / "trajectory.csv").read_text()
+    assert (out_a / "landmarks.csv").read_text() == (out_b / "landmarks.csv").read_text()
+
+    m = json.loads((out_a / "metrics.json").read_text())
+    for key in ("method", "seed", "num_particles", "initial_pose", "n_landmarks", "n_confirmed_landmarks",
+                "timing", "drops", "landmarks", "trajectory"):
+        assert key in m, key
+    assert m["method"] == "online_em" and m["seed"] == 3 and m["motion_model"] == "acfr"
+    for key in ("n_true", "n_matched", "n_missed", "n_spurious", "rmse", "matches"):
+        assert key in m["landmarks"], key
+    for key in ("alignment", "rmse", "median", "max", "n_compared"):
+        assert key in m["trajectory"], key
+    for key in ("mean_step_ms", "p99_step_ms", "real_time_factor", "wall_time_s", "dataset_duration_s"):
+        assert key in m["timing"], key
+    assert m["trajectory"]["alignment"] == "none"
+    assert m["timing"]["dataset_duration_s"] == pytest.approx(125.05, abs=0.1)
+    assert m["landmarks"]["n_true"] == 15
+    # sanity of the tuned configuration (loose bounds: the report gives the measured values)
+    assert m["landmarks"]["n_matched"] >= 13 and m["landmarks"]["rmse"] < 1.0
+    assert m["trajectory"]["median"] < 1.5
+    rows = (out_a / "trajectory.csv").read_text().splitlines()
+    assert len(rows) - 1 == m["n_observation_messages"]      # one pose per observation message (586)
+
+
+def test_compare_writes_table(car_park_bag, tmp_path):
+    out = tmp_path / "cmp"
+    assert cli.main(["compare", str(car_park_bag), "--params", str(CAR_PARK_PARAMS), "--output", str(out),
+                     "--methods", "online_em", "ekf_slam", "--no-plot", "--particles", "20"]) == 0
+    table = json.loads((out / "comparison.json").read_text())
+    assert [r["method"] for r in table["methods"]] == ["online_em", "ekf_slam"]
+    for key in ("beacons_mapped", "spurious", "beacon_rmse_m", "trajectory_rmse_m", "mean_ms_per_step",
+                "real_time_factor"):
+        assert key in table["methods"][0], key
+    text = (out / "comparison.md").read_text()
+    assert "| method |" in text and "| ekf_slam |" in text
+    assert (out / "ekf_slam" / "metrics.json").exists()
+
+
+def test_run_reports_errors(tmp_path):
+    assert cli.main(["run", str(tmp_path / "missing"), "--params", str(CAR_PARK_PARAMS),
+                     "--output", str(tmp_path / "o")]) == 1
+
+
+def test_param_file_formats(tmp_path):
+    path = tmp_path / "p.yaml"
+    path.write_text(
+        "/**:\n  ros__parameters:\n    motion_source: control\n    motion:\n      model: acfr\n"
+        "      wheelbase: 2.83\n    filter.num_particles: 10\n"
+        "/**/online_em_slam:\n  ros__parameters:\n    filter:\n      num_particles: 20\n"
+        "other_node:\n  ros__parameters:\n    filter.num_particles: 30\n")
+    values = load_params(path)
+    assert values == {"motion_source": "control", "motion.model": "acfr", "motion.wheelbase": 2.83,
+                      "filter.num_particles": 20}
+    config, settings = config_from_params(path)
+    assert config.motion.model == "acfr" and config.filter.num_particles == 20
+    assert settings.motion_source == "control"
+    config, _ = config_from_params({"online_em_slam": {"ros__parameters": {"sensor": {"offset_x": 1.5}}}})
+    assert config.sensor.offset_x == 1.5
+    config, _ = config_from_params({"noise.sigma_range": 0.2}, {"filter.seed": 5})
+    assert config.noise.sigma_range == 0.2 and config.filter.seed == 5
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("other_node:\n  ros__parameters:\n    a: 1\n")
+    with pytest.raises(ParamFileError):
+        load_params(bad)
+    c, s = config_from_params(CAR_PARK_PARAMS)
+    assert (c.motion.model, s.motion_source, s.control_angular) == ("acfr", "control", "steering")
+    c, s = config_from_params(ROOT / "config" / "victoria_park.yaml")
+    assert (c.motion.model, s.motion_source, c.sensor.offset_x) == ("acfr", "control", 3.78)
+
+
+def test_params_build_importable_without_ros():
+    code = ("import sys\n"
+            "class Block:\n"
+            "    def find_spec(self, name, path, target=None):\n"
+            "        if name.split('.')[0] in ('rclpy', 'rcl_interfaces'):\n"
+            "            raise ImportError('blocked ' + name)\n"
+            "sys.meta_path.insert(0, Block())\n"
+            "from online_em_slam.paramfile import config_from_params\n"
+            f"print(config_from_params({str(CAR_PARK_PARAMS)!r})[0].motion.model)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "acfr"

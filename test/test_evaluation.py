@@ -1,0 +1,119 @@
+"""Metrics of online_em_slam.evaluation on hand-made cases."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from online_em_slam.evaluation import (initial_pose_from_gps, interpolate_poses, interpolate_positions,
+                                       landmark_metrics, rigid_alignment, sensor_points, timing_metrics,
+                                       trajectory_metrics)
+
+TRUTH = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0]])
+
+
+def test_perfect_landmarks_give_zero_error():
+    m = landmark_metrics(TRUTH[::-1].copy(), TRUTH)
+    assert m.n_matched == 4 and m.n_missed == 0 and m.n_spurious == 0
+    assert m.rmse == 0.0 and m.max_error == 0.0
+    assert sorted((x.true_index, x.estimate_index) for x in m.matches) == [(0, 3), (1, 2), (2, 1), (3, 0)]
+
+
+def test_missed_and_spurious_landmarks_are_counted():
+    est = np.array([[0.3, 0.4],        # true 0, error 0.5
+                    [10.0, 0.0],       # true 1, error 0
+                    [0.2, 0.0],        # duplicate near true 0: spurious
+                    [50.0, 50.0]])     # far from everything: spurious
+    m = landmark_metrics(est, TRUTH, gate=2.0, estimated_ids=[7, 8, 9, 10])
+    assert m.n_matched == 2
+    assert m.missed == [2, 3] and m.n_missed == 2
+    assert m.n_spurious == 2
+    # one-to-one: the closer duplicate (0.2 m) wins true landmark 0, the 0.5 m estimate is spurious
+    assert sorted(m.spurious) == [7, 10]
+    assert m.rmse == pytest.approx(math.sqrt((0.2 ** 2 + 0.0) / 2))
+    d = m.to_dict()
+    assert d["n_spurious"] == 2 and isinstance(d["matches"], list)
+
+
+def test_gate_rejects_far_matches_and_empty_inputs():
+    m = landmark_metrics([[3.0, 0.0]], [[0.0, 0.0]], gate=2.0)
+    assert m.n_matched == 0 and m.n_missed == 1 and m.n_spurious == 1 and math.isnan(m.rmse)
+    assert m.to_dict()["rmse"] is None                         # JSON-safe
+    empty = landmark_metrics(np.zeros((0, 2)), TRUTH)
+    assert empty.n_missed == 4 and empty.n_spurious == 0
+
+
+def test_interpolation_in_time():
+    t = np.array([0.0, 1.0, 3.0])
+    p = np.array([[0.0, 0.0], [1.0, 2.0], [3.0, 2.0]])
+    q = interpolate_positions(t, p, [-0.5, 0.0, 0.5, 2.0, 3.0, 3.5])
+    assert np.isnan(q[0]).all() and np.isnan(q[5]).all()
+    np.testing.assert_allclose(q[1:5], [[0, 0], [0.5, 1.0], [2.0, 2.0], [3.0, 2.0]])
+    # yaw interpolated across +-pi along the short arc
+    poses = np.array([[0, 0, math.pi - 0.1], [1, 0, -math.pi + 0.1]])
+    mid = interpolate_poses([0.0, 1.0], poses, [0.5])[0]
+    assert abs(abs(mid[2]) - math.pi) < 1e-9
+
+
+def test_trajectory_error_estimate_interpolated_at_truth_times():
+    t_est = np.arange(0.0, 10.01, 1.0)
+    est = np.stack([t_est, np.zeros_like(t_est)], axis=1)          # x = t
+    t_gt = np.array([0.5, 2.25, 7.0, 12.0])                       # 12 s is outside the estimate
+    gt = np.stack([t_gt, np.full(4, 0.3)], axis=1)                # constant 0.3 m offset
+    m = trajectory_metrics(t_est, est, t_gt, gt)
+    assert m.alignment == "none" and m.n_ground_truth == 4 and m.n_compared == 3
+    assert m.rmse == pytest.approx(0.3) and m.median == pytest.approx(0.3) and m.max == pytest.approx(0.3)
+    assert m.aligned is None
+
+
+def test_rigid_alignment_recovers_rotation_and_translation():
+    rng = np.random.default_rng(3)
+    src = rng.uniform(-20, 20, (50, 2))
+    angle = 0.3
+    R = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
+    dst = src @ R.T + [5.0, -2.0]
+    R_hat, t_hat = rigid_alignment(src, dst)
+    np.testing.assert_allclose(R_hat, R, atol=1e-12)
+    np.testing.assert_allclose(t_hat, [5.0, -2.0], atol=1e-10)
+    times = np.arange(50.0)
+    m = trajectory_metrics(times, src, times, dst, align=True)
+    assert m.rmse > 1.0
+    assert m.aligned.rmse == pytest.approx(0.0, abs=1e-9)
+    assert m.aligned_rotation_deg == pytest.approx(math.degrees(angle))
+
+
+def test_timing_and_real_time_factor():
+    t = timing_metrics([0.001] * 99 + [0.011], dataset_duration=100.0, wall_time=4.0)
+    assert t.n_steps == 100 and t.mean_step_ms == pytest.approx(1.1)
+    assert t.max_step_ms == pytest.approx(11.0) and 1.0 < t.p99_step_ms <= 11.0
+    assert t.real_time_factor == pytest.approx(25.0)
+
+
+def test_sensor_points_and_initial_pose_from_gps_on_a_curve():
+    """A vehicle driving on a circle: the GPS (sensor point) track direction is not the
+    heading, but the odometry-fitted initial pose recovers the true start pose."""
+    offset = (3.78, 0.5)
+    true_start = np.array([12.0, -4.0, 0.7])
+    radius, speed = 15.0, 3.0
+    t = np.arange(0.0, 10.0, 0.05)
+    # poses on a left circle starting at true_start
+    yaw = true_start[2] + speed * t / radius
+    cx = true_start[0] - radius * math.sin(true_start[2])
+    cy = true_start[1] + radius * math.cos(true_start[2])
+    poses = np.stack([cx + radius * np.sin(yaw), cy - radius * np.cos(yaw), yaw], axis=1)
+    np.testing.assert_allclose(poses[0], true_start, atol=1e-12)
+    gps = sensor_points(poses, offset)
+    # odometry: same motion in a frame rotated and shifted arbitrarily
+    a = -1.1
+    Ra = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    odom = np.column_stack([poses[:, :2] @ Ra.T + [100.0, 50.0], poses[:, 2] + a])
+    gps_t = t[2::4]                                 # GPS starts a little after the odometry
+    est = initial_pose_from_gps(gps_t, gps[2::4], offset, start_time=0.0, odom_times=t, odom_poses=odom)
+    assert est.x == pytest.approx(true_start[0], abs=1e-6)
+    assert est.y == pytest.approx(true_start[1], abs=1e-6)
+    assert est.yaw == pytest.approx(true_start[2], abs=1e-6)
+    # without odometry: anchored at the first fix, heading = GPS track direction (biased on a curve)
+    rough = initial_pose_from_gps(gps_t, gps[2::4], offset, start_time=0.0)
+    np.testing.assert_allclose(sensor_points(np.array([rough.pose]), offset)[0], gps[2], atol=1e-9)
+    assert abs(rough.yaw - true_start[2]) > 0.05
