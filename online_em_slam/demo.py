@@ -79,6 +79,9 @@ def main(argv=None) -> int:
     parser.add_argument("--rate", type=float, default=5.0, help="replay rate (default 5)")
     parser.add_argument("--seed", type=int, default=0, help="filter seed of the node and the offline run")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default 1 + pid % 100)")
+    parser.add_argument("--input-delay", type=float, default=None,
+                        help="node input_delay (s of stamp time; default: the params file's value times "
+                             "--rate, i.e. the same reordering window in wall time as at rate 1)")
     parser.add_argument("--timeout", type=float, default=180.0, help="overall time limit of the DDS part (s)")
     args = parser.parse_args(argv)
 
@@ -120,12 +123,16 @@ def main(argv=None) -> int:
     from .cloud import decode_message
     from .core.types import LandmarkMap
 
+    # input_delay is in stamp time: at replay rate R the same wall-clock reordering window
+    # (messages of different topics are delivered by separate DDS readers) needs R times more.
+    input_delay = args.input_delay if args.input_delay is not None else settings.input_delay * max(args.rate, 1.0)
     env = dict(os.environ)
     node_log = open(out / "node.log", "w")
     node_cmd = [sys.executable, "-m", "online_em_slam.ros.node", "--ros-args", "--params-file", str(params),
                 "-p", "use_sim_time:=true", "-p", f"filter.seed:={args.seed}",
                 "-p", f"initial_pose.x:={initial.x:.9f}", "-p", f"initial_pose.y:={initial.y:.9f}",
-                "-p", f"initial_pose.yaw:={initial.yaw:.12f}", "-p", "publish_particles:=false"]
+                "-p", f"initial_pose.yaw:={initial.yaw:.12f}", "-p", "publish_particles:=false",
+                "-p", f"input_delay:={input_delay:.6f}"]
     print(f"[2/6] starting the node (ROS_DOMAIN_ID={domain}): {' '.join(node_cmd[1:])}", flush=True)
     node_proc = subprocess.Popen(node_cmd, stdout=node_log, stderr=subprocess.STDOUT, env=env)
 
@@ -182,14 +189,21 @@ def main(argv=None) -> int:
         def received(diag):
             return int(diag.get("inputs", 0)) + sum(int(diag.get(f"dropped.{r}", 0)) for r in PRE_BUFFER_DROPS)
 
-        settle_until = None
+        # Done when every input is accounted for, or when nothing changed for a while (inputs lost).
+        settle = 2.5 * max(settings.map_publish_period, settings.diagnostics_period)
+        settle_until, last_seen, last_change = None, None, time.monotonic()
         while time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
             diag = state["diag"]
-            if diag and received(diag) >= total_published and int(diag.get("queued_inputs", 1)) == 0:
+            if not diag:
+                continue
+            seen = (received(diag), int(diag.get("observation_updates", 0)))
+            if seen != last_seen:
+                last_seen, last_change = seen, time.monotonic()
+            idle = int(diag.get("queued_inputs", 1)) == 0
+            if idle and (received(diag) >= total_published or time.monotonic() - last_change > 3 * settle):
                 if settle_until is None:
-                    settle_until = time.monotonic() + 2.5 * max(settings.map_publish_period,
-                                                                settings.diagnostics_period)
+                    settle_until = time.monotonic() + settle
                 elif time.monotonic() > settle_until:
                     break
         diag = state["diag"] or {}

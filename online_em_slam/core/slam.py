@@ -351,13 +351,16 @@ class OnlineEMSlam:
             self._spread[rows] += share[:, None, None] * (spread_new - self._spread[rows])
             self._tau[:, rows] += stats_new
             self._block_count[rows] += 1
-            fresh = self._count[rows] == 0
-            if fresh.any():
-                # A landmark first seen inside a block keeps its inverse-observation
-                # initialisation until the block ends; its covariance comes from s.
-                first = rows[fresh]
-                self._stats[first] = np.einsum("n,nmk->mk", weights, stats_new[:, fresh])
-                self._inv_n[first] = 1.0
+            fresh = rows[self._count[rows] == 0]
+            if fresh.size:
+                # A landmark first seen inside a block has no block estimate yet: until
+                # its first block ends it is estimated from the running block mean, so
+                # the filter does not localise against a single-observation guess.
+                stats = np.einsum("n,nmk->mk", weights, self._tau[:, fresh]) / self._block_count[fresh, None]
+                theta, ok = m_step(stats)
+                self._theta[fresh[ok]] = theta[ok]
+                self._stats[fresh] = stats
+                self._inv_n[fresh] = 1.0 / self._block_count[fresh]
         if self._step + 1 < self._block_end:
             return
         seen = self._block_count > 0
