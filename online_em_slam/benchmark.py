@@ -212,6 +212,10 @@ def main(argv: list[str] | None = None) -> int:
     jobs = [(m, s, args.particles, args.steps) for s in range(args.runs) for m in args.methods]
     started = time.perf_counter()
     if args.jobs > 1:
+        # One BLAS thread per worker: the per-step matrices are small, and workers
+        # competing for cores would distort the timings.
+        for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(name, "1")
         from multiprocessing import get_context
         with get_context("spawn").Pool(args.jobs) as pool:
             results = [r for r in pool.imap(run_one, jobs) if r is not None]

@@ -79,9 +79,6 @@ def main(argv=None) -> int:
     parser.add_argument("--rate", type=float, default=5.0, help="replay rate (default 5)")
     parser.add_argument("--seed", type=int, default=0, help="filter seed of the node and the offline run")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default 1 + pid % 100)")
-    parser.add_argument("--input-delay", type=float, default=None,
-                        help="node input_delay (s of stamp time; default: the params file's value times "
-                             "--rate, i.e. the same reordering window in wall time as at rate 1)")
     parser.add_argument("--timeout", type=float, default=180.0, help="overall time limit of the DDS part (s)")
     args = parser.parse_args(argv)
 
@@ -123,16 +120,12 @@ def main(argv=None) -> int:
     from .cloud import decode_message
     from .core.types import LandmarkMap
 
-    # input_delay is in stamp time: at replay rate R the same wall-clock reordering window
-    # (messages of different topics are delivered by separate DDS readers) needs R times more.
-    input_delay = args.input_delay if args.input_delay is not None else settings.input_delay * max(args.rate, 1.0)
     env = dict(os.environ)
     node_log = open(out / "node.log", "w")
     node_cmd = [sys.executable, "-m", "online_em_slam.ros.node", "--ros-args", "--params-file", str(params),
                 "-p", "use_sim_time:=true", "-p", f"filter.seed:={args.seed}",
                 "-p", f"initial_pose.x:={initial.x:.9f}", "-p", f"initial_pose.y:={initial.y:.9f}",
-                "-p", f"initial_pose.yaw:={initial.yaw:.12f}", "-p", "publish_particles:=false",
-                "-p", f"input_delay:={input_delay:.6f}"]
+                "-p", f"initial_pose.yaw:={initial.yaw:.12f}", "-p", "publish_particles:=false"]
     print(f"[2/6] starting the node (ROS_DOMAIN_ID={domain}): {' '.join(node_cmd[1:])}", flush=True)
     node_proc = subprocess.Popen(node_cmd, stdout=node_log, stderr=subprocess.STDOUT, env=env)
 

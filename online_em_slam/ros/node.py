@@ -107,6 +107,8 @@ class OnlineEmSlamNode(Node):
         self._seq = 0
         self._newest: float | None = None
         self._newest_by_kind: dict[int, float] = {}
+        self._stream_wall: dict[int, float] = {}       # wall time of each input stream's last message
+        self._first_input_wall: float | None = None
         self._last_processed: float | None = None
         self._last_motion_stamp: dict[int, float] = {}
         self._motion_seen = False
@@ -307,8 +309,37 @@ class OnlineEmSlamNode(Node):
         self._newest = stamp if self._newest is None else max(self._newest, stamp)
         self._seq += 1
         heapq.heappush(self._buffer, (stamp, kind, self._seq, payload, received))
-        self._last_enqueue_wall = time.monotonic()
-        self._drain(self._newest - s.input_delay)
+        now = time.monotonic()
+        self._last_enqueue_wall = now
+        self._stream_wall[kind] = now
+        if self._first_input_wall is None:
+            self._first_input_wall = now
+        self._drain(self._watermark(now))
+
+    def _expected_streams(self) -> tuple[int, ...]:
+        return (ODOM, OBSERVATIONS, CONTROL) if self._control_sub is not None else (ODOM, OBSERVATIONS)
+
+    def _watermark(self, now: float) -> float:
+        """Stamp up to which every input is known to have arrived.
+
+        Each stream is ordered, so an input is safe to process once every active
+        stream has delivered something at least as recent: the buffer then loses
+        nothing however fast a bag is replayed or however late one topic lags.
+        A stream silent for ``input_delay`` wall seconds (or never seen that long
+        after the first input) stops holding the others back.
+        """
+        delay = self._settings.input_delay
+        if delay <= 0:
+            return math.inf
+        marks = []
+        for kind in self._expected_streams():
+            seen = self._stream_wall.get(kind)
+            if seen is None:
+                if now - self._first_input_wall < delay:
+                    marks.append(-math.inf)
+            elif now - seen < delay:
+                marks.append(self._newest_by_kind[kind])
+        return min(marks) if marks else math.inf
 
     def _drain(self, limit: float) -> None:
         processed = False
@@ -522,9 +553,14 @@ class OnlineEmSlamNode(Node):
     def _housekeeping(self) -> None:
         with self._lock:
             self._check_clock_jump()
-            # Inputs held for reordering are processed once no newer input came for a while.
-            if self._buffer and time.monotonic() - self._last_enqueue_wall > self._settings.input_delay + 0.2:
-                self._drain(math.inf)
+            # Inputs held for reordering are processed once no newer input came for a while,
+            # and a stream that went silent stops holding the others back.
+            if self._buffer:
+                now = time.monotonic()
+                if now - self._last_enqueue_wall > self._settings.input_delay + 0.2:
+                    self._drain(math.inf)
+                else:
+                    self._drain(self._watermark(now))
 
     def _reset(self, reason: str) -> None:
         with self._lock:
@@ -539,6 +575,8 @@ class OnlineEmSlamNode(Node):
             self._buffer.clear()
             self._newest = self._last_processed = None
             self._newest_by_kind.clear()
+            self._stream_wall.clear()
+            self._first_input_wall = None
             self._last_motion_stamp.clear()
             self._motion_seen = False
             self._odom_history.clear()

@@ -154,9 +154,10 @@ NODE_SPECS = (
               "bag replay; needs reliable publishers) or best_effort (matches every publisher).",
               choices=RELIABILITIES, read_only=True),
     ParamSpec("input_qos.depth", 1000, "Input queue depth.", 1, 100000, read_only=True),
-    ParamSpec("input_delay", 0.2, "Inputs are buffered this long (s, in stamp time) and processed in "
-              "stamp order, so observations that arrive after later odometry are still used "
-              "(0: process each input on arrival).", 0.0, 10.0),
+    ParamSpec("input_delay", 1.0, "Inputs are processed in stamp order: each waits until every active "
+              "input stream has delivered a message at least as recent (lossless at any replay rate); a "
+              "stream silent for this long (wall-clock s) stops holding the others back. Must exceed the "
+              "slowest input period (0: process each input on arrival).", 0.0, 10.0),
     ParamSpec("reset_on_time_jump", True, "Reset when the clock or the input stamps jump back."),
     ParamSpec("time_jump_threshold", 1.0, "A backward jump of more than this (s) resets; smaller "
               "backward steps are dropped as out_of_order.", 0.01, 1e6, read_only=True),
@@ -191,7 +192,7 @@ class NodeSettings:
     observations_topic: str = "landmark_observations"
     input_reliability: str = "reliable"
     input_depth: int = 1000
-    input_delay: float = 0.2
+    input_delay: float = 1.0
     reset_on_time_jump: bool = True
     time_jump_threshold: float = 1.0
     map_file: str = ""
