@@ -21,7 +21,7 @@ from .config import MotionConfig
 
 def _noise_cov(G: np.ndarray, variances: np.ndarray) -> np.ndarray:
     """G diag(variances) G^T for G (N, 3, k)."""
-    return np.einsum("nik,k,njk->nij", G, variances, G)
+    return (G * variances) @ np.swapaxes(G, 1, 2)
 
 
 def _control_variances(config: MotionConfig, dt: float) -> np.ndarray:

@@ -24,6 +24,21 @@ def normalize_log_weights(log_weights: np.ndarray) -> tuple[np.ndarray, float]:
     return w / total, float(top + np.log(total / lw.shape[0]))
 
 
+def weighted_sum(weights: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """sum_i w_i values[i] over the particle axis, as one BLAS matrix-vector product."""
+    return (weights @ values.reshape(values.shape[0], -1)).reshape(values.shape[1:])
+
+
+def weighted_outer(weights: np.ndarray, dev: np.ndarray) -> np.ndarray:
+    """sum_i w_i dev[i] dev[i]^T for 2-vectors dev (N, K, 2): (K, 2, 2)."""
+    wd = dev * weights[:, None, None]
+    out = np.empty(dev.shape[1:] + (2,))
+    out[:, 0, 0] = (wd[..., 0] * dev[..., 0]).sum(axis=0)
+    out[:, 1, 1] = (wd[..., 1] * dev[..., 1]).sum(axis=0)
+    out[:, 0, 1] = out[:, 1, 0] = (wd[..., 0] * dev[..., 1]).sum(axis=0)
+    return out
+
+
 def effective_sample_size(weights: np.ndarray) -> float:
     """ESS = 1 / sum w_i^2 for normalised weights."""
     return float(1.0 / np.sum(weights * weights))

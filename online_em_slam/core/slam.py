@@ -25,8 +25,9 @@ from .observation import (innovation, inv_det_2x2, inverse_observation, landmark
                           noise_covariance, noise_loglik, component_precision_weight,
                           predict_observation, sensor_poses)
 from .particles import (effective_sample_size, normalize_log_weights, sample_gaussians,
-                        systematic_resample, weighted_pose_covariance, weighted_pose_mean)
-from .statistics import (STAT_DIM, backward_kernel, forward_smooth, information_covariance,
+                        systematic_resample, weighted_outer, weighted_pose_covariance,
+                        weighted_pose_mean, weighted_sum)
+from .statistics import (STAT_DIM, backward_kernel, differing_landmarks, forward_smooth, information_covariance,
                          m_step, observation_statistics, paris_indices, paris_smooth)
 from .types import LandmarkMap, Observations, PoseEstimate, StepReport
 
@@ -315,19 +316,29 @@ class OnlineEMSlam:
         """
         w = weights_prior / weights_prior.sum()
         points = inverse_observation(sensor[:, None, :], y[None])                         # (N, P, 2)
-        dev = points - np.einsum("n,npi->pi", w, points)[None]
-        return np.einsum("n,npi,npj->pij", w, dev, dev)
+        dev = points - weighted_sum(w, points)[None]
+        return weighted_outer(w, dev)
 
     def _smooth(self, tau_prev, log_w_prev, trans_cov, particles, ancestors) -> np.ndarray:
         smoother = self.config.filter.smoother
         if smoother == "ancestry":
             return tau_prev[ancestors]
+        # Both kernels average the previous statistics (rows sum to one), so a
+        # landmark whose statistic is already the same in every particle keeps
+        # it: only the landmarks that still differ across particles are smoothed.
+        # In a large map most landmarks are out of sight and collapsed.
+        active = differing_landmarks(tau_prev)
+        if not active.any():
+            return tau_prev
+        tau = tau_prev.copy()
         if smoother == "paris":
             idx = paris_indices(log_w_prev, self._pred_mean, trans_cov, particles,
                                 self.config.filter.paris_draws, self._rng)
-            return paris_smooth(tau_prev, idx)
-        kernel = backward_kernel(log_w_prev, self._pred_mean, trans_cov, particles)
-        return forward_smooth(tau_prev, kernel)
+            tau[:, active] = paris_smooth(tau_prev[:, active], idx)
+        else:
+            kernel = backward_kernel(log_w_prev, self._pred_mean, trans_cov, particles)
+            tau[:, active] = forward_smooth(tau_prev[:, active], kernel)
+        return tau
 
     def _online_em_update(self, rows: np.ndarray, stats_new, spread_new, weights: np.ndarray) -> None:
         """tau <- (1 - gamma_n) tau + gamma_n s for the observed landmarks, gamma_n = n^-alpha."""
@@ -339,7 +350,7 @@ class OnlineEMSlam:
             self._spread[rows] = (1.0 - gamma)[:, None, None] * self._spread[rows] + gamma[:, None, None] * spread_new
             self._inv_n[rows] = (1.0 - gamma) ** 2 * self._inv_n[rows] + gamma ** 2
         if self._tau.shape[1]:
-            stats = np.einsum("n,nmk->mk", weights, self._tau)
+            stats = weighted_sum(weights, self._tau)
             self._apply_m_step(stats, self._count >= em.min_updates_before_mstep)
 
     def _block_em_update(self, rows: np.ndarray, stats_new, spread_new, weights: np.ndarray) -> None:
@@ -356,7 +367,7 @@ class OnlineEMSlam:
                 # A landmark first seen inside a block has no block estimate yet: until
                 # its first block ends it is estimated from the running block mean, so
                 # the filter does not localise against a single-observation guess.
-                stats = np.einsum("n,nmk->mk", weights, self._tau[:, fresh]) / self._block_count[fresh, None]
+                stats = weighted_sum(weights, self._tau[:, fresh]) / self._block_count[fresh, None]
                 theta, ok = m_step(stats)
                 self._theta[fresh[ok]] = theta[ok]
                 self._stats[fresh] = stats
@@ -365,7 +376,7 @@ class OnlineEMSlam:
             return
         seen = self._block_count > 0
         if seen.any():
-            block_sum = np.einsum("n,nmk->mk", weights, self._tau[:, seen])
+            block_sum = weighted_sum(weights, self._tau[:, seen])
             counts = self._block_count[seen]
             if em.algorithm == "block_averaged":
                 self._avg_stats[seen] += block_sum
@@ -494,12 +505,11 @@ class OnlineEMSlam:
         """
         theta = self._theta[rows]
         h = predict_observation(sensor[:, None, :], theta[None])                         # (N, K, 2)
-        mean = np.einsum("n,nkd->kd", w, h)
-        mean[:, 1] = np.arctan2(np.einsum("n,nk->k", w, np.sin(h[..., 1])),
-                                np.einsum("n,nk->k", w, np.cos(h[..., 1])))
+        mean = weighted_sum(w, h)
+        mean[:, 1] = np.arctan2(w @ np.sin(h[..., 1]), w @ np.cos(h[..., 1]))
         dev = h - mean[None]
         dev[..., 1] = wrap_angle(dev[..., 1])
-        spread = np.einsum("n,nki,nkj->kij", w, dev, dev)
+        spread = weighted_outer(w, dev)
         H = landmark_jacobian(weighted_pose_mean(sensor, w)[None], theta)                # (K, 2, 2)
         assoc = self.config.association
         map_cov = self._landmark_covariances(rows) + assoc.gate_position_std ** 2 * np.eye(2)

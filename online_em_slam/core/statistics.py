@@ -79,14 +79,15 @@ def information_covariance(stats: np.ndarray, inverse_sample_size: np.ndarray) -
     return cov * inverse_sample_size[..., None, None]
 
 
-def particle_spread(tau: np.ndarray, weights: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """Weighted covariance (M, 2, 2) of the per-particle M-step solutions A_i^-1 b_i around theta.
+def differing_landmarks(tau: np.ndarray, rtol: float = 1e-6) -> np.ndarray:
+    """Landmarks whose statistic still differs between particles (M,) bool.
 
-    Particles whose statistic is singular contribute nothing.
+    A statistic equal in every particle (to ``rtol`` of its magnitude) is a
+    fixed point of any smoothing kernel whose rows sum to one.
     """
-    per_particle, ok = m_step(tau)                                   # (N, M, 2)
-    dev = np.where(ok[..., None], per_particle - theta[None], 0.0)
-    return np.einsum("n,nmi,nmj->mij", weights, dev, dev)
+    spread = np.ptp(tau, axis=0).max(axis=-1)
+    scale = np.abs(tau[0]).max(axis=-1)
+    return spread > rtol * np.maximum(scale, 1e-300)
 
 
 def backward_kernel(log_weights_prev: np.ndarray, means: np.ndarray, covariances: np.ndarray,
