@@ -11,6 +11,10 @@ compounded over the control steps between two observation times (EKF-style
 moments, F Sigma F^T + G Q G^T).  The same density (T) serves as the proposal
 and inside the backward kernel of the smoother, so sampling and smoothing are
 consistent: this is the seed's "Gaussian approximation of the prior m(x, x')".
+
+Controls may be one row (2,) or one row per pose (N, 2), with dt a scalar or
+(N,): :func:`integrate_segments` uses that to apply all the control messages
+received between two scans in one vectorised pass.
 """
 from __future__ import annotations
 
@@ -20,8 +24,8 @@ from .config import MotionConfig
 
 
 def _noise_cov(G: np.ndarray, variances: np.ndarray) -> np.ndarray:
-    """G diag(variances) G^T for G (N, 3, k)."""
-    return (G * variances) @ np.swapaxes(G, 1, 2)
+    """G diag(variances) G^T for G (N, 3, k), variances (k,) or (N, k)."""
+    return (G * variances[..., None, :]) @ np.swapaxes(G, 1, 2)
 
 
 def _control_variances(config: MotionConfig, dt: float) -> np.ndarray:
@@ -31,8 +35,8 @@ def _control_variances(config: MotionConfig, dt: float) -> np.ndarray:
     the variance is sigma^2 * ref / dt so that the integrated pose variance
     per second does not depend on the control rate.
     """
-    scale = config.noise_reference_period / max(dt, 1e-6)
-    return np.array([config.sigma_speed ** 2, config.sigma_steering ** 2]) * scale
+    scale = config.noise_reference_period / np.maximum(dt, 1e-6)
+    return np.stack([config.sigma_speed ** 2 * scale, config.sigma_steering ** 2 * scale], axis=-1)
 
 
 def _heading_noise(config: MotionConfig, dt: float) -> float:
@@ -44,7 +48,7 @@ def bicycle(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: fl
 
     X' = X + (v dt cos(phi + psi), v dt sin(phi + psi), v dt sin(psi) / B).
     """
-    v, psi = float(control[0]), float(control[1])
+    v, psi = control[..., 0], control[..., 1]
     B = config.wheelbase
     heading = poses[:, 2] + psi
     c, s = np.cos(heading), np.sin(heading)
@@ -72,7 +76,7 @@ def acfr(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float
     The laser point of the dataset README's model is this pose plus the sensor
     offset (a, b), so the observation model carries the lever arm.
     """
-    v_e, alpha = float(control[0]), float(control[1])
+    v_e, alpha = control[..., 0], control[..., 1]
     L, H = config.wheelbase, config.encoder_offset
     tan_a = np.tan(alpha)
     sec2 = 1.0 + tan_a ** 2
@@ -100,7 +104,7 @@ def acfr(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float
 
 def unicycle(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):
     """Control u = (v, omega): X' = X + (v dt cos(phi + omega dt / 2), v dt sin(.), omega dt)."""
-    v, omega = float(control[0]), float(control[1])
+    v, omega = control[..., 0], control[..., 1]
     heading = poses[:, 2] + 0.5 * omega * dt
     c, s = np.cos(heading), np.sin(heading)
     n = poses.shape[0]
@@ -125,8 +129,8 @@ def odometry(config: MotionConfig, poses: np.ndarray, increment: np.ndarray, dt:
     X' = X + (R(phi) (dx, dy), dphi), noise in the body frame with standard
     deviations growing with the distance and angle travelled.
     """
-    dx, dy, dphi = (float(v) for v in increment[:3])
-    dist = float(np.hypot(dx, dy))
+    dx, dy, dphi = increment[..., 0], increment[..., 1], increment[..., 2]
+    dist = np.hypot(dx, dy)
     c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
     n = poses.shape[0]
     mean = poses.copy()
@@ -136,9 +140,10 @@ def odometry(config: MotionConfig, poses: np.ndarray, increment: np.ndarray, dt:
     F = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
     F[:, 0, 2] = -s * dx - c * dy
     F[:, 1, 2] = c * dx - s * dy
-    moved = dist > 0 or dphi != 0
-    sig_t = (config.odometry_translation_std if moved else 0.0) + config.odometry_translation_per_meter * dist
-    sig_r = ((config.odometry_rotation_std if moved else 0.0)
+    # A robot standing still gets no odometry noise (only the per-step jitter).
+    moved = (dist > 0) | (dphi != 0)
+    sig_t = np.where(moved, config.odometry_translation_std, 0.0) + config.odometry_translation_per_meter * dist
+    sig_r = (np.where(moved, config.odometry_rotation_std, 0.0)
              + config.odometry_rotation_per_radian * abs(dphi)
              + config.odometry_rotation_per_meter * dist)
     Q = np.zeros((n, 3, 3))
@@ -154,6 +159,51 @@ MODELS = {"bicycle": bicycle, "acfr": acfr, "unicycle": unicycle, "odometry": od
 def propagate(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):
     """Dispatch to the configured model: returns (f(X, u), F, G Q G^T)."""
     return MODELS[config.model](config, np.asarray(poses, dtype=float), np.asarray(control, dtype=float), dt)
+
+
+def _through_lever(P: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """A P A^T for A = I + s e_yaw^T, s (..., 2) the position-by-yaw sensitivity.
+
+    Every model's Jacobian has this form (position moves with the yaw only) and
+    such matrices multiply by adding their s: F_K ... F_1 = I + (sum s_k) e_yaw^T.
+    """
+    s3 = np.zeros(s.shape[:-1] + (3,))
+    s3[..., :2] = s
+    c = P[..., :, 2]
+    return (P + s3[..., :, None] * c[..., None, :] + c[..., :, None] * s3[..., None, :]
+            + P[..., 2, 2][..., None, None] * s3[..., :, None] * s3[..., None, :])
+
+
+def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.ndarray,
+                       controls: np.ndarray, dts: np.ndarray):
+    """Apply K consecutive control segments to every pose in one vectorised pass.
+
+    Equivalent to K calls of :func:`propagate` with mean <- f(mean, u_k) and
+    P <- F_k P F_k^T + Q_k.  It relies on two properties shared by all models:
+    the yaw increment does not depend on the pose, so every heading along the
+    way is known up front, and the Jacobians are I + s_k e_yaw^T, so
+    P_K = A_0 P_0 A_0^T + sum_k A_k Q_k A_k^T with A_k = I + (sum_{j>k} s_j) e_yaw^T.
+    """
+    controls = np.asarray(controls, dtype=float)
+    dts = np.asarray(dts, dtype=float)
+    k, n = dts.shape[0], poses.shape[0]
+    if k == 0:
+        return poses, covariances
+    model = MODELS[config.model]
+    yaw_steps = model(config, np.zeros((k, 3)), controls, dts)[0][:, 2]
+    yaw_before = np.concatenate([[0.0], np.cumsum(yaw_steps)[:-1]])
+    before = np.zeros((k, n, 3))
+    before[..., 2] = poses[None, :, 2] + yaw_before[:, None]
+    flat = before.reshape(-1, 3)
+    mean, F, Q = model(config, flat, np.repeat(controls, n, axis=0), np.repeat(dts, n))
+    moves = (mean - flat).reshape(k, n, 3)
+    new = poses.copy()
+    new[:, :2] += moves[..., :2].sum(axis=0)
+    new[:, 2] += yaw_steps.sum()
+    s = F[:, :2, 2].reshape(k, n, 2)
+    from_k = np.cumsum(s[::-1], axis=0)[::-1]           # sum_{j >= k} s_j
+    cov = _through_lever(covariances, from_k[0]) + _through_lever(Q.reshape(k, n, 3, 3), from_k - s).sum(axis=0)
+    return new, cov
 
 
 def step_jitter(config: MotionConfig) -> np.ndarray:
