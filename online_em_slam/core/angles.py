@@ -1,19 +1,22 @@
 """Angle helpers: wrapping and circular statistics."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+_TWO_PI = 2.0 * math.pi
 
 
 def wrap_angle(angle):
-    """Wrap angles to (-pi, pi].
+    """Wrap angles to (-pi, pi]: pi - ((pi - a) mod 2 pi).
 
-    Uses atan2(sin, cos) rather than a modulo so that +pi stays +pi and
-    values many turns away wrap correctly; works on scalars and arrays.
+    One floating-point modulo instead of atan2(sin, cos): this runs on every
+    bearing and heading of every particle.  +pi stays +pi, -pi maps to +pi,
+    and values many turns away wrap correctly; scalars give floats.
     """
-    wrapped = np.arctan2(np.sin(angle), np.cos(angle))
-    # atan2 returns -pi for sin == -0.0; fold it onto the documented +pi.
-    return np.where(wrapped <= -np.pi, np.pi, wrapped) if np.ndim(wrapped) else (
-        np.pi if wrapped <= -np.pi else float(wrapped))
+    wrapped = math.pi - np.mod(math.pi - np.asarray(angle, dtype=float), _TWO_PI)
+    return float(wrapped) if wrapped.ndim == 0 else wrapped
 
 
 def circular_mean(angles: np.ndarray, weights: np.ndarray) -> float:
