@@ -443,8 +443,7 @@ class OnlineEMSlam:
                 report.dropped["duplicate_id"] = report.dropped.get("duplicate_id", 0) + dup
                 self.drops["duplicate_id"] += dup
             idx, ids = idx[np.sort(first)], ids[np.sort(first)]
-            row_of = {int(i): r for r, i in enumerate(self._ids)}
-            rows = np.array([row_of.get(int(i), -1) for i in ids], dtype=int)
+            rows = self._rows_of_ids(ids)
             pair_o.append(idx[rows >= 0])
             pair_l.append(rows[rows >= 0])
             for o, i in zip(idx[rows < 0], ids[rows < 0]):
@@ -490,6 +489,15 @@ class OnlineEMSlam:
         if not pair_o:
             return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
         return np.concatenate(pair_o).astype(int), np.concatenate(pair_l).astype(int)
+
+    def _rows_of_ids(self, ids: np.ndarray) -> np.ndarray:
+        """Map row of each landmark id, -1 where the id is not in the map."""
+        if not self._ids.size:
+            return np.full(ids.shape, -1, dtype=int)
+        order = np.argsort(self._ids, kind="stable")
+        sorted_ids = self._ids[order]
+        pos = np.minimum(np.searchsorted(sorted_ids, ids), sorted_ids.size - 1)
+        return np.where(sorted_ids[pos] == ids, order[pos], -1).astype(int)
 
     def _dedupe_new(self, positions: np.ndarray, obs_idx: np.ndarray):
         """Two unexplained observations of one scan closer than the range noise make one landmark."""
