@@ -211,7 +211,7 @@ class RunResult:
     n_observation_messages: int
 
 
-def feed(estimator, inputs: BagInputs, motion_source: str) -> RunResult:
+def feed(estimator, inputs: BagInputs) -> RunResult:
     """Feed the events in order; record the pose after every observation message."""
     durations, rows = [], []
     skipped = {"empty_cloud": 0, "no_motion_input": 0, "malformed_cloud": inputs.malformed}
@@ -351,7 +351,7 @@ def run_one(inputs: BagInputs, config: SlamConfig, settings, method: str, initia
             extra: dict | None = None) -> dict:
     output.mkdir(parents=True, exist_ok=True)
     estimator = make_estimator(method, config, initial.pose)
-    result = feed(estimator, inputs, settings.motion_source)
+    result = feed(estimator, inputs)
     result.method = method
     metrics = {"method": method, "bag": inputs.path, **(extra or {}),
                "seed": config.filter.seed, "num_particles": config.filter.num_particles,

@@ -17,16 +17,9 @@ import numpy as np
 
 from ..core.angles import wrap_angle
 from ..core.config import SlamConfig
+from ..core.motion import odometry_increment
 from ..core.observation import noise_covariance
 from ..core.types import Observations, StepReport
-
-
-def odometry_increment(previous: np.ndarray, current: np.ndarray) -> np.ndarray:
-    """Relative pose (dx, dy, dphi) of ``current`` expressed in the frame of ``previous``:
-    (dx, dy) = R(-phi_prev) (p_cur - p_prev), dphi = wrap(phi_cur - phi_prev)."""
-    c, s = math.cos(previous[2]), math.sin(previous[2])
-    d = current[:2] - previous[:2]
-    return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], wrap_angle(current[2] - previous[2])])
 
 
 def prediction_substeps(dt: float, max_step: float) -> tuple[int, float]:

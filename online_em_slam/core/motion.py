@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .angles import wrap_angle
 from .config import MotionConfig
 
 
@@ -121,6 +122,14 @@ def unicycle(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: f
     Q = _noise_cov(G, _control_variances(config, dt))
     Q[:, 2, 2] += _heading_noise(config, dt)
     return mean, F, Q
+
+
+def odometry_increment(previous: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """Odometry control (dx, dy, dphi): ``current`` odometry pose in the frame of ``previous``,
+    (dx, dy) = R(-phi_prev) (p_cur - p_prev), dphi = wrap(phi_cur - phi_prev)."""
+    c, s = np.cos(previous[2]), np.sin(previous[2])
+    dx, dy = current[0] - previous[0], current[1] - previous[1]
+    return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_angle(current[2] - previous[2])])
 
 
 def odometry(config: MotionConfig, poses: np.ndarray, increment: np.ndarray, dt: float):

@@ -178,10 +178,7 @@ class OnlineEMSlam:
             return False
         stamp = float(stamp)
         if self.config.motion.model == "odometry" and self._last_odom is not None and self._time is not None:
-            prev = self._last_odom
-            c, s = np.cos(prev[2]), np.sin(prev[2])
-            dx, dy = odom_pose[0] - prev[0], odom_pose[1] - prev[1]
-            increment = np.array([c * dx + s * dy, -s * dx + c * dy, wrap_angle(odom_pose[2] - prev[2])])
+            increment = motion_models.odometry_increment(self._last_odom, odom_pose)
             self._predict(increment, max(stamp - self._time, 0.0))
         self._last_odom = odom_pose[:3].copy()
         self._advance_to(stamp)

@@ -19,6 +19,7 @@ the input stamps and are checked finite before publishing.
 """
 from __future__ import annotations
 
+import bisect
 import heapq
 import math
 import os
@@ -437,13 +438,13 @@ class OnlineEmSlamNode(Node):
             return history[-1][1] if stamp - history[-1][0] <= 1.0 else None
         if stamp <= history[0][0]:
             return history[0][1] if history[0][0] - stamp <= 1.0 else None
-        for (t0, p0), (t1, p1) in zip(reversed(list(history)[:-1]), reversed(list(history)[1:])):
-            if t0 <= stamp <= t1:
-                a = 0.0 if t1 == t0 else (stamp - t0) / (t1 - t0)
-                out = p0 + a * (p1 - p0)
-                out[2] = wrap_angle(p0[2] + a * wrap_angle(p1[2] - p0[2]))
-                return out
-        return history[-1][1]
+        # History is in stamp order: bisect instead of scanning it on every update.
+        k = bisect.bisect_right(history, stamp, key=lambda item: item[0])
+        (t0, p0), (t1, p1) = history[k - 1], history[k]
+        a = 0.0 if t1 == t0 else (stamp - t0) / (t1 - t0)
+        out = p0 + a * (p1 - p0)
+        out[2] = wrap_angle(p0[2] + a * wrap_angle(p1[2] - p0[2]))
+        return out
 
     def _send_transform(self, data_stamp: float | None) -> None:
         s = self._settings
