@@ -25,8 +25,17 @@ from .config import MotionConfig
 
 
 def _noise_cov(G: np.ndarray, variances: np.ndarray) -> np.ndarray:
-    """G diag(variances) G^T for G (N, 3, k), variances (k,) or (N, k)."""
-    return (G * variances[..., None, :]) @ np.swapaxes(G, 1, 2)
+    """G diag(variances) G^T for G (N, 3, k), variances (k,) or (N, k).
+
+    Summed entry by entry: for thousands of 3 x k matrices that is several
+    times faster than a batched matmul.
+    """
+    GV = G * variances[..., None, :]
+    Q = np.empty(G.shape[:-1] + (3,))
+    for a in range(3):
+        for b in range(a, 3):
+            Q[:, a, b] = Q[:, b, a] = (GV[:, a, :] * G[:, b, :]).sum(axis=-1)
+    return Q
 
 
 def _control_variances(config: MotionConfig, dt: float) -> np.ndarray:

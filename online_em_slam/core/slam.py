@@ -87,6 +87,7 @@ class OnlineEMSlam:
         self._stats = np.zeros((0, STAT_DIM))          # smoothed statistic S_k of the last M-step
         self._spread = np.zeros((0, 2, 2))             # pose-induced landmark covariance (SA average)
         self._tau = np.zeros((n, 0, STAT_DIM))         # per-particle auxiliary statistics
+        self._differing = np.zeros(0, dtype=bool)      # tau may still differ across particles
         # Block Online EM state.
         self._block_index = 1
         self._block_end = cfg.em.block_initial_length
@@ -225,6 +226,7 @@ class OnlineEMSlam:
         self._stats = np.vstack([self._stats, np.zeros((k, STAT_DIM))])
         self._spread = np.concatenate([self._spread, np.zeros((k, 2, 2))])
         self._tau = np.concatenate([self._tau, np.zeros((n, k, STAT_DIM))], axis=1)
+        self._differing = np.concatenate([self._differing, np.zeros(k, dtype=bool)])
         self._block_count = np.concatenate([self._block_count, np.zeros(k, dtype=np.int64)])
         self._avg_stats = np.vstack([self._avg_stats, np.zeros((k, STAT_DIM))])
         self._avg_count = np.concatenate([self._avg_count, np.zeros(k, dtype=np.int64)])
@@ -235,6 +237,7 @@ class OnlineEMSlam:
                      "_stats", "_spread", "_block_count", "_avg_stats", "_avg_count"):
             setattr(self, name, getattr(self, name)[keep])
         self._tau = self._tau[:, keep]
+        self._differing = self._differing[keep]
 
     def _next_ids(self, k: int, pending: list[int]) -> list[int]:
         """Ids for landmarks created from unknown-id observations: above every id in use."""
@@ -335,24 +338,27 @@ class OnlineEMSlam:
 
     def _smooth(self, tau_prev, log_w_prev, trans_cov, particles, ancestors) -> np.ndarray:
         smoother = self.config.filter.smoother
-        if smoother == "ancestry":
-            return tau_prev[ancestors]
         # Both kernels average the previous statistics (rows sum to one), so a
         # landmark whose statistic is already the same in every particle keeps
         # it: only the landmarks that still differ across particles are smoothed.
-        # In a large map most landmarks are out of sight and collapsed.
-        active = differing_landmarks(tau_prev)
-        if not active.any():
+        # In a large map most landmarks are out of sight and collapsed; the flag
+        # spares the O(N M) test on them, and is raised again by an observation.
+        candidates = np.flatnonzero(self._differing)
+        if candidates.size:
+            self._differing[candidates] = differing_landmarks(tau_prev[:, candidates])
+        active = np.flatnonzero(self._differing)
+        if smoother == "ancestry":
+            return tau_prev[ancestors]
+        if not active.size:
             return tau_prev
-        tau = tau_prev.copy()
         if smoother == "paris":
             idx = paris_indices(log_w_prev, self._pred_mean, trans_cov, particles,
                                 self.config.filter.paris_draws, self._rng)
-            tau[:, active] = paris_smooth(tau_prev[:, active], idx)
+            tau_prev[:, active] = paris_smooth(tau_prev[:, active], idx)
         else:
             kernel = backward_kernel(log_w_prev, self._pred_mean, trans_cov, particles)
-            tau[:, active] = forward_smooth(tau_prev[:, active], kernel)
-        return tau
+            tau_prev[:, active] = forward_smooth(tau_prev[:, active], kernel)
+        return tau_prev
 
     def _online_em_update(self, rows: np.ndarray, stats_new, spread_new, weights: np.ndarray) -> None:
         """tau <- (1 - gamma_n) tau + gamma_n s for the observed landmarks, gamma_n = n^-alpha."""
@@ -363,9 +369,13 @@ class OnlineEMSlam:
             self._tau[:, rows] = (1.0 - gamma)[None, :, None] * self._tau[:, rows] + gamma[None, :, None] * stats_new
             self._spread[rows] = (1.0 - gamma)[:, None, None] * self._spread[rows] + gamma[:, None, None] * spread_new
             self._inv_n[rows] = (1.0 - gamma) ** 2 * self._inv_n[rows] + gamma ** 2
-        if self._tau.shape[1]:
-            stats = weighted_sum(weights, self._tau)
-            self._apply_m_step(stats, self._count >= em.min_updates_before_mstep)
+            self._differing[rows] = True
+        # A statistic equal in every particle has the same weighted mean whatever
+        # the weights: its M-step would return the current theta.
+        changed = np.flatnonzero(self._differing)
+        if changed.size:
+            stats = weighted_sum(weights, self._tau[:, changed])
+            self._apply_m_step(stats, self._count[changed] >= em.min_updates_before_mstep, changed)
 
     def _block_em_update(self, rows: np.ndarray, stats_new, spread_new, weights: np.ndarray) -> None:
         """Block Online EM: theta fixed within a block, statistics summed, M-step at block end."""
@@ -376,6 +386,7 @@ class OnlineEMSlam:
             self._spread[rows] += share[:, None, None] * (spread_new - self._spread[rows])
             self._tau[:, rows] += stats_new
             self._block_count[rows] += 1
+            self._differing[rows] = True
             fresh = rows[self._count[rows] == 0]
             if fresh.size:
                 # A landmark first seen inside a block has no block estimate yet: until
@@ -407,16 +418,19 @@ class OnlineEMSlam:
             self._apply_m_step(stats, seen & (self._count >= em.min_updates_before_mstep))
         # Restart smoothing for the next block.
         self._tau[:] = 0.0
+        self._differing[:] = False
         self._block_count[:] = 0
         self._block_index += 1
         length = int(np.ceil(em.block_initial_length * self._block_index ** em.block_growth))
         self._block_end = self._step + 1 + length
 
-    def _apply_m_step(self, stats: np.ndarray, eligible: np.ndarray) -> None:
+    def _apply_m_step(self, stats: np.ndarray, eligible: np.ndarray, rows: np.ndarray | slice = slice(None)) -> None:
+        """theta = A^-1 b for the landmarks ``rows`` whose statistics are ``stats``."""
         theta, ok = m_step(stats)
         update = eligible & ok
-        self._theta[update] = theta[update]
-        self._stats[update] = stats[update]
+        target = np.arange(self._theta.shape[0])[rows][update]
+        self._theta[target] = theta[update]
+        self._stats[target] = stats[update]
 
     # ------------------------------------------------------------------ association
     def _associate(self, obs: Observations, sensor: np.ndarray, prior_weights: np.ndarray,
@@ -620,3 +634,4 @@ class OnlineEMSlam:
             self._tau = np.broadcast_to(self._stats, (n, m, STAT_DIM)).copy()
         else:
             self._tau = np.zeros((n, m, STAT_DIM))
+        self._differing = np.zeros(m, dtype=bool)
