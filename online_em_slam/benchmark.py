@@ -112,6 +112,28 @@ def run_online(method: str, scenario: Scenario, particles: int, seed: int) -> Ru
                      float(np.nanmean(loglik)), int(len(lm)), curve)
 
 
+def run_em_passes(scenario: Scenario, particles: int, seed: int, passes: int) -> list[float]:
+    """Landmark RMSE after each of ``passes`` passes of online EM (forward smoother)
+    over the same data, each pass starting from the previous pass's map: batch
+    EM iterations, which show how far one online pass is from the EM fixed point."""
+    config = slam_config_for(scenario, num_particles=particles, seed=seed)
+    estimator = make_estimator("online_em_forward", config, scenario)
+    rmse = []
+    for index in range(passes):
+        if index:
+            estimator.start_new_pass(scenario.initial_pose, stamp=0.0)
+        for step in scenario.steps:
+            feed(estimator, step)
+        lm = estimator.landmarks()
+        rmse.append(float(np.sqrt(np.mean(landmark_errors(lm.ids, lm.positions, scenario.landmarks) ** 2))))
+    return rmse
+
+
+def em_passes_job(job: tuple[int, int, int, int]) -> list[float]:
+    seed, particles, steps, passes = job
+    return run_em_passes(simulate(ScenarioConfig(seed=seed, n_steps=steps)), particles, seed, passes)
+
+
 def run_gtsam(scenario: Scenario, particles: int, seed: int) -> RunResult | None:
     from .baselines.gtsam_batch import batch_estimate
     config = slam_config_for(scenario, num_particles=particles, seed=seed)
@@ -197,6 +219,36 @@ def plot_curves(results: list[dict], path: str, dt: float) -> None:
     plt.close(fig)
 
 
+def _pool_map(function, jobs: list, workers: int) -> list:
+    """Map over worker processes, each with one BLAS thread: the per-step
+    matrices are small, and workers competing for cores would distort timings."""
+    if workers <= 1:
+        return [function(job) for job in jobs]
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, "1")
+    from multiprocessing import get_context
+    with get_context("spawn").Pool(workers) as pool:
+        return list(pool.imap(function, jobs))
+
+
+def em_passes_main(args) -> int:
+    """``--em-passes K``: mean landmark RMSE after each pass, written to em_passes.json."""
+    jobs = [(seed, args.particles, args.steps, args.em_passes) for seed in range(args.runs)]
+    curves = np.array(_pool_map(em_passes_job, jobs, args.jobs))                      # (runs, K)
+    lines = ["| pass | landmark RMSE mean (m) | median | std |", "|---|---|---|---|"]
+    for k in range(args.em_passes):
+        column = curves[:, k]
+        lines.append(f"| {k + 1} | {column.mean():.3f} | {np.median(column):.3f} | {column.std(ddof=1) if len(column) > 1 else 0.0:.3f} |")
+    text = "\n".join(lines)
+    print(text)
+    with open(os.path.join(args.output, "em_passes.json"), "w") as handle:
+        json.dump({"meta": {"runs": args.runs, "particles": args.particles, "steps": args.steps,
+                            "passes": args.em_passes},
+                   "rmse_per_pass": curves.tolist(), "mean": curves.mean(axis=0).tolist()}, handle, indent=1)
+    print(f"wrote {args.output}/em_passes.json")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -207,18 +259,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, default=1,
                         help="worker processes (timings are honest with jobs <= cores)")
     parser.add_argument("--output", default="results/benchmark")
+    parser.add_argument("--em-passes", type=int, default=0, metavar="K",
+                        help="instead of the comparison, run K passes of online EM over each run's data "
+                             "(batch EM iterations) and report the landmark RMSE after each pass")
     args = parser.parse_args(argv)
     os.makedirs(args.output, exist_ok=True)
+    if args.em_passes > 0:
+        return em_passes_main(args)
     jobs = [(m, s, args.particles, args.steps) for s in range(args.runs) for m in args.methods]
     started = time.perf_counter()
     if args.jobs > 1:
-        # One BLAS thread per worker: the per-step matrices are small, and workers
-        # competing for cores would distort the timings.
-        for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-            os.environ.setdefault(name, "1")
-        from multiprocessing import get_context
-        with get_context("spawn").Pool(args.jobs) as pool:
-            results = [r for r in pool.imap(run_one, jobs) if r is not None]
+        results = [r for r in _pool_map(run_one, jobs, args.jobs) if r is not None]
     else:
         results = []
         for i, job in enumerate(jobs, 1):

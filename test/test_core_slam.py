@@ -148,3 +148,24 @@ def test_save_and_load_map_continue_estimation(tmp_path, known_scenario):
     report = slam.add_observations(slam.last_stamp + 0.2 if slam.last_stamp else 0.2,
                                    scenario.steps[10].observations())
     assert report.n_created == 0 and report.n_associated > 0
+
+
+def test_a_new_pass_starts_from_the_map_with_fresh_statistics():
+    """Batch EM by repeated passes: the map is kept as the starting point, the
+    statistics and step-size counts restart, the second pass maps the same landmarks."""
+    scenario = simulate(ScenarioConfig(seed=0, n_steps=300))
+    slam, _ = run(scenario)
+    first = slam.landmarks()
+    slam.start_new_pass(scenario.initial_pose, stamp=0.0)
+    restarted = slam.landmarks()
+    np.testing.assert_array_equal(restarted.positions, first.positions)
+    np.testing.assert_array_equal(restarted.ids, first.ids)
+    assert slam.step_count == 0 and not slam._count.any()
+    for step in scenario.steps:
+        feed(slam, step)
+    second = slam.landmarks()
+    np.testing.assert_array_equal(np.sort(second.ids), np.sort(first.ids))
+    assert np.all(np.isfinite(second.positions))
+    # A pass is one EM iteration: it may not move the map far from where it started.
+    assert (landmark_rmse(second.ids, second.positions, scenario.landmarks)
+            < landmark_rmse(first.ids, first.positions, scenario.landmarks) + 0.5)

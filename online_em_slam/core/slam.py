@@ -95,6 +95,25 @@ class OnlineEMSlam:
         self._avg_stats = np.zeros((0, STAT_DIM))
         self._avg_count = np.zeros(0, dtype=np.int64)
 
+    def start_new_pass(self, initial_pose=None, stamp: float | None = None) -> None:
+        """Prepare another pass over the same data: batch EM by repeated passes.
+
+        The map estimate theta (and the landmark ids and observation counts)
+        is kept as the starting point; the statistics, step-size counts and the
+        filter restart, so the next pass computes an E-step under the current
+        map and its M-steps replace the previous pass's statistics.  This is
+        for offline diagnostics (how far EM is from its fixed point); the
+        online use is a single pass.
+        """
+        # The last statistics and spreads stay until each landmark's first update of the
+        # new pass replaces them (step size 1): they give the map uncertainty meanwhile.
+        kept = {name: getattr(self, name).copy()
+                for name in ("_theta", "_ids", "_n_obs", "_confirmed", "_stats", "_spread", "_inv_n")}
+        self.reset(initial_pose, stamp)
+        self._add_landmarks(kept.pop("_theta"), kept.pop("_ids"))
+        for name, value in kept.items():
+            setattr(self, name, value)
+
     @property
     def last_stamp(self) -> float | None:
         return self._time
