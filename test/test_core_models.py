@@ -141,3 +141,21 @@ def test_batched_segments_equal_step_by_step_propagation(model):
     batch_mean, batch_cov = motion.integrate_segments(config, poses, P, controls, dts)
     np.testing.assert_allclose(batch_mean, mean, atol=1e-12)
     np.testing.assert_allclose(batch_cov, cov, atol=1e-12)
+
+
+def test_noise_covariance_is_g_diag_q_g_transpose():
+    rng = np.random.default_rng(3)
+    G = rng.standard_normal((40, 3, 2))
+    variances = rng.random(2)
+    np.testing.assert_allclose(motion._noise_cov(G, variances),
+                               (G * variances) @ np.swapaxes(G, 1, 2), atol=1e-14)
+
+
+def test_cofactor_inverse_matches_lapack():
+    from online_em_slam.core.particles import symmetric_inverse_3x3
+    rng = np.random.default_rng(4)
+    A = rng.standard_normal((50, 3, 3))
+    P = A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(3)
+    inverse, logdet = symmetric_inverse_3x3(P)
+    np.testing.assert_allclose(inverse, np.linalg.inv(P), rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(logdet, np.linalg.slogdet(P)[1], atol=1e-10)

@@ -365,9 +365,9 @@ class OnlineEMSlam:
         candidates = np.flatnonzero(self._differing)
         if candidates.size:
             self._differing[candidates] = differing_landmarks(tau_prev[:, candidates])
-        active = np.flatnonzero(self._differing)
         if smoother == "ancestry":
             return tau_prev[ancestors]
+        active = np.flatnonzero(self._differing)
         if not active.size:
             return tau_prev
         if smoother == "paris":
