@@ -16,6 +16,7 @@ MOTION_MODELS = ("bicycle", "acfr", "unicycle", "odometry")
 NOISE_MODELS = ("gaussian", "mixture")
 SMOOTHERS = ("forward", "paris", "ancestry")
 EM_ALGORITHMS = ("online", "block", "block_averaged")
+M_STEPS = ("complete", "observed")
 
 
 def _check_range(name: str, value: float, low: float, high: float,
@@ -161,6 +162,16 @@ class EMConfig:
     online:          gamma_n = n^-step_size_exponent per landmark (n = its update count).
     block:           blocks of length ceil(block_initial_length * k^block_growth) steps (k = block index).
     block_averaged:  block statistics averaged over all past blocks, weighted by block length.
+
+    m_step:
+      ``complete``  the seed's M-step theta_k = A_k^-1 b_k on the smoothed
+                    complete-data statistics (poses treated as known);
+      ``observed``  a Newton step with the observed information: the joint
+                    Gauss-Newton system over poses and map at the filter's mean
+                    poses, poses integrated out every ``segment_length`` steps
+                    (docs/METHOD.md, "Observed-information M-step").
+    relinearize_threshold: a landmark or key pose that moved by more than this
+                    (m) since its factors were linearised is re-linearised.
     """
 
     algorithm: str = "online"
@@ -169,6 +180,9 @@ class EMConfig:
     block_initial_length: int = 20
     block_growth: float = 1.1
     inflate_with_map_uncertainty: bool = True
+    m_step: str = "complete"
+    segment_length: int = 10
+    relinearize_threshold: float = 0.5
 
     def validate(self, prefix: str = "em") -> None:
         _check_choice(f"{prefix}.algorithm", self.algorithm, EM_ALGORITHMS)
@@ -176,6 +190,9 @@ class EMConfig:
         _check_range(f"{prefix}.min_updates_before_mstep", self.min_updates_before_mstep, 1, 1000)
         _check_range(f"{prefix}.block_initial_length", self.block_initial_length, 1, 100000)
         _check_range(f"{prefix}.block_growth", self.block_growth, 0.0, 3.0)
+        _check_choice(f"{prefix}.m_step", self.m_step, M_STEPS)
+        _check_range(f"{prefix}.segment_length", self.segment_length, 1, 100000)
+        _check_range(f"{prefix}.relinearize_threshold", self.relinearize_threshold, 0.0, 1e3, low_open=True)
 
 
 @dataclass

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:   # rcl_interfaces is imported where it is used, so build() works without ROS
     from rcl_interfaces.msg import ParameterDescriptor
 
-from ..core.config import (EM_ALGORITHMS, MOTION_MODELS, NOISE_MODELS, SMOOTHERS, SlamConfig)
+from ..core.config import (EM_ALGORITHMS, M_STEPS, MOTION_MODELS, NOISE_MODELS, SMOOTHERS, SlamConfig)
 
 AUTO_MODEL = "auto"
 MOTION_SOURCES = ("odom", "control")
@@ -101,6 +101,12 @@ _CORE = {
     "em.block_initial_length": ("Block Online EM: first block length (steps).", (1, 100000)),
     "em.block_growth": ("Block Online EM: block k has length initial * k^growth.", (0.0, 3.0)),
     "em.inflate_with_map_uncertainty": ("Add the landmark covariance to the innovation covariance.", None),
+    "em.m_step": ("complete (seed: A^-1 b per landmark) or observed (Newton step with the observed "
+                  "information: poses integrated out of the joint system).", None),
+    "em.segment_length": ("Observed M-step: filter steps per segment whose poses are integrated out.",
+                          (1, 100000)),
+    "em.relinearize_threshold": ("Observed M-step: re-linearise a landmark's factors when it moved "
+                                 "more than this (m).", (0.0, 1000.0)),
     "association.gate_probability": ("Chi-square(2) probability of the association gate, in (0, 1).",
                                      (0.0, 1.0)),
     "association.new_landmark_probability": ("Outside this wider gate of every landmark an unknown-id "
@@ -124,6 +130,7 @@ _CHOICES = {
     "noise.model": NOISE_MODELS,
     "filter.smoother": SMOOTHERS,
     "em.algorithm": EM_ALGORITHMS,
+    "em.m_step": M_STEPS,
 }
 
 # Node settings: (name, default, description, range or choices, read_only).
