@@ -22,7 +22,7 @@ import numpy as np
 
 from .core import OnlineEMSlam, SlamConfig
 from .core.angles import wrap_angle
-from .core.simulator import Scenario, ScenarioConfig, feed, simulate, slam_config_for
+from .simulation import Scenario, ScenarioConfig, feed, simulate, slam_config_for
 
 ONLINE_METHODS = {
     "online_em_forward": dict(smoother="forward", algorithm="online"),

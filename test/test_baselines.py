@@ -18,7 +18,7 @@ from online_em_slam.baselines.ekf_slam import EkfSlam
 from online_em_slam.baselines.fastslam2 import FastSlam2
 from online_em_slam.baselines.gtsam_batch import dead_reckoning
 from online_em_slam.core.config import MotionConfig, replace_section
-from online_em_slam.core.simulator import (ScenarioConfig, feed, landmark_rmse, simulate,
+from online_em_slam.simulation import (ScenarioConfig, feed, landmark_rmse, simulate,
                                            slam_config_for)
 from online_em_slam.core.types import Observations
 

@@ -4,7 +4,7 @@ import pytest
 from scipy.optimize import linear_sum_assignment
 
 from online_em_slam.core import Observations, OnlineEMSlam, SlamConfig
-from online_em_slam.core.simulator import ScenarioConfig, feed, landmark_rmse, simulate, slam_config_for
+from online_em_slam.simulation import ScenarioConfig, feed, landmark_rmse, simulate, slam_config_for
 
 
 def dead_reckoning_map_rmse(scenario):

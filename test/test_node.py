@@ -34,7 +34,7 @@ from online_em_slam.ros.node import OnlineEmSlamNode, latched_qos  # noqa: E402
 from online_em_slam.ros.params import ParameterError  # noqa: E402
 
 try:
-    from online_em_slam.core.simulator import ScenarioConfig, simulate
+    from online_em_slam.simulation import ScenarioConfig, simulate
 except ImportError:  # pragma: no cover - the simulator is written by another helper
     simulate = None
 

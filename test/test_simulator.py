@@ -1,4 +1,4 @@
-"""Tests of the seeded simulator of the seed experiment (core/simulator.py)."""
+"""Tests of the seeded simulator of the seed experiment (online_em_slam/simulation.py)."""
 import math
 import time
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from online_em_slam.core.observation import innovation, noise_covariance, predict_observation
-from online_em_slam.core.simulator import (ScenarioConfig, Scenario, feed, landmark_rmse, simulate,
+from online_em_slam.simulation import (ScenarioConfig, Scenario, feed, landmark_rmse, simulate,
                                            slam_config_for)
 
 

@@ -103,7 +103,7 @@ def batch_estimate(scenario, config: SlamConfig | None = None, n_landmarks: int 
     import gtsam  # optional dependency, see module docstring
 
     if config is None:
-        from ..core.simulator import slam_config_for
+        from ..simulation import slam_config_for
         config = slam_config_for(scenario)
     sensor = config.sensor
     if sensor.offset_x != 0.0 or sensor.offset_y != 0.0:
