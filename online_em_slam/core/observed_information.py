@@ -1,0 +1,235 @@
+"""Observed information of the map: the joint Gauss-Newton system with the poses integrated out.
+
+ALGORITHM.md section 6 / docs/METHOD.md "Observed-information M-step".  Under the
+seed's local linearisation, the log-likelihood of the map is, to second order,
+what remains of the joint least-squares problem over (poses, map) once the
+poses are integrated out (a Schur complement).  Its curvature is the *observed*
+information (Louis 1982: complete minus missing information), so a Newton step
+with it moves the whole map at a loop closure, where the complete-data M-step
+theta_k = A_k^-1 b_k leaves a drifted map as a near fixed point.
+
+Variables: dx_t = X_t - xbar_t, the correction of pose t from its linearisation
+point (the filter's weighted mean pose), and theta, the map in absolute
+coordinates.  Factors, each a linear residual r = target - J z with information W:
+
+    prior        r = (x_0 - xbar_0) - dx_0,                    W = P_0^-1        (P)
+    motion       r = c_t - (dx_t - F_t dx_{t-1}),              W = Q_t^-1        (M)
+                 c_t = f(xbar_{t-1}, u_t) - xbar_t (yaw wrapped)
+    observation  r = (ytilde + H_l thetabar_k) - (H_x dx_t + H_l theta_k),
+                 ytilde = y - h(xbar_t, thetabar_k) (bearing wrapped),  W = Pbar  (O)
+
+The stored system is the information matrix and vector over z = [dx_key; theta],
+dx_key the correction of the latest kept pose: its size grows with the map,
+never with time.  The factors of a segment of K filter steps are buffered,
+linearised at the segment's end (so a landmark that moved during the segment
+is linearised where it is now), and all the segment's poses but its last are
+integrated out.  With one segment and no map update in between, the solve is
+exactly one Gauss-Newton step of batch least squares over every pose and
+landmark (test_observed_information.py checks this against scipy).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import LinAlgError, cho_factor, cho_solve
+
+from .angles import wrap_angle
+from .config import SensorConfig
+from .observation import innovation, landmark_jacobian, pose_jacobian, predict_observation, sensor_poses
+
+POSE_DIM = 3
+# Floors of the first-pose prior: a start known exactly still needs a finite
+# information to pin the gauge (the map's frame).
+MIN_PRIOR_STD = np.array([1e-3, 1e-3, 1e-4])
+
+
+@dataclass
+class StepFactors:
+    """The factors one filter step adds: motion from the previous pose, observations at this pose.
+
+    pose (3,) linearisation point xbar_t; F (3, 3), c (3,), W (3, 3) of (M);
+    rows (P,) landmark rows, y (P, 2) observations, precision (P, 2, 2) Pbar of (O).
+    """
+
+    pose: np.ndarray
+    F: np.ndarray
+    c: np.ndarray
+    W: np.ndarray
+    rows: np.ndarray
+    y: np.ndarray
+    precision: np.ndarray
+
+
+class ObservedInformation:
+    """Information form over [dx_key; theta] plus the buffered factors of the open segment."""
+
+    def __init__(self, sensor: SensorConfig, initial_pose, initial_pose_std) -> None:
+        self.sensor = sensor
+        std = np.maximum(np.asarray(initial_pose_std, dtype=float), MIN_PRIOR_STD)
+        self.key_pose = np.asarray(initial_pose, dtype=float).copy()       # xbar of the key pose
+        self.info = np.diag(1.0 / std ** 2)                                   # (3 + 2M, 3 + 2M)
+        self.vector = np.zeros(POSE_DIM)                                      # (3 + 2M,)
+        self.segment: list[StepFactors] = []
+        self._covariance_cache: np.ndarray | None = None
+
+    @property
+    def n_landmarks(self) -> int:
+        return (self.info.shape[0] - POSE_DIM) // 2
+
+    # ------------------------------------------------------------ map rows
+    def add_landmarks(self, count: int) -> None:
+        """New landmarks enter with zero information; their factors bring it."""
+        if count <= 0:
+            return
+        n = self.info.shape[0]
+        info = np.zeros((n + 2 * count, n + 2 * count))
+        info[:n, :n] = self.info
+        self.info = info
+        self.vector = np.concatenate([self.vector, np.zeros(2 * count)])
+        self._covariance_cache = None
+
+    def keep_landmarks(self, keep: np.ndarray) -> None:
+        """Remove landmarks (``keep`` False) by integrating them out (Schur complement).
+
+        Marginalising, not deleting, leaves the other landmarks' solution exactly
+        unchanged.  Buffered factors of a removed landmark are dropped: it has not
+        reached the stored system yet, and one or two observations of a free
+        landmark say next to nothing about the poses.
+        """
+        keep = np.asarray(keep, dtype=bool)
+        new_row = np.cumsum(keep) - 1
+        for step in self.segment:
+            mask = keep[step.rows]
+            step.rows, step.y, step.precision = new_row[step.rows[mask]], step.y[mask], step.precision[mask]
+        if keep.all():
+            return
+        lm = np.arange(POSE_DIM, self.info.shape[0]).reshape(-1, 2)
+        kept = np.concatenate([np.arange(POSE_DIM), lm[keep].ravel()])
+        dropped = lm[~keep].ravel()
+        self.info, self.vector = marginalize(self.info, self.vector, kept, dropped)
+        self._covariance_cache = None
+
+    # ------------------------------------------------------------ factors
+    def add_step(self, step: StepFactors) -> None:
+        self.segment.append(step)
+
+    def close_segment(self, theta: np.ndarray) -> None:
+        """Linearise the buffered factors at (xbar_t, theta) and integrate out every
+        pose of the segment but its last, which becomes the key pose."""
+        if not self.segment:
+            return
+        k = len(self.segment)
+        m = theta.shape[0]
+        size = POSE_DIM * (k + 1) + 2 * m
+        info = np.zeros((size, size))
+        vector = np.zeros(size)
+        stored = np.concatenate([np.arange(POSE_DIM), POSE_DIM * (k + 1) + np.arange(2 * m)])
+        info[np.ix_(stored, stored)] = self.info
+        vector[stored] = self.vector
+        self._add_motion_factors(info, vector)
+        self._add_observation_factors(info, vector, theta, first_landmark=POSE_DIM * (k + 1))
+        eliminated = np.arange(POSE_DIM * k)
+        kept = np.arange(POSE_DIM * k, size)
+        self.info, self.vector = marginalize(info, vector, kept, eliminated)
+        self.key_pose = self.segment[-1].pose.copy()
+        self.segment = []
+        self._covariance_cache = None
+
+    def _add_motion_factors(self, info: np.ndarray, vector: np.ndarray) -> None:
+        """(M) for every step: J = [-F_t, I] on (dx_{t-1}, dx_t)."""
+        F = np.stack([s.F for s in self.segment])                            # (K, 3, 3)
+        W = np.stack([s.W for s in self.segment])
+        c = np.stack([s.c for s in self.segment])
+        J = np.concatenate([-F, np.broadcast_to(np.eye(POSE_DIM), F.shape)], axis=-1)   # (K, 3, 6)
+        index = POSE_DIM * np.arange(len(self.segment))[:, None] + np.arange(2 * POSE_DIM)
+        _scatter(info, vector, index, J, W, c)
+
+    def _add_observation_factors(self, info, vector, theta, first_landmark: int) -> None:
+        """(O) for every observation: J = [H_x, H_l] on (dx_t, theta_k)."""
+        steps = [(t, s) for t, s in enumerate(self.segment, start=1) if s.rows.size]
+        if not steps:
+            return
+        step_of = np.concatenate([np.full(s.rows.size, t) for t, s in steps])
+        poses = np.stack([s.pose for _, s in steps])[np.repeat(np.arange(len(steps)), [s.rows.size for _, s in steps])]
+        rows = np.concatenate([s.rows for _, s in steps])
+        y = np.concatenate([s.y for _, s in steps])
+        precision = np.concatenate([s.precision for _, s in steps])
+        J, target = observation_factor(poses, theta[rows], y, self.sensor)
+        index = np.concatenate([POSE_DIM * step_of[:, None] + np.arange(POSE_DIM),
+                                first_landmark + 2 * rows[:, None] + np.arange(2)], axis=1)
+        _scatter(info, vector, index, J, precision, target)
+
+    # ------------------------------------------------------------ solve
+    def solve(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Minimiser of the stored quadratic: (theta (M, 2), dx_key (3,)), None if not positive definite."""
+        factor = self._factor()
+        if factor is None:
+            return None
+        z = cho_solve(factor, self.vector)
+        if not np.all(np.isfinite(z)):
+            return None
+        return z[POSE_DIM:].reshape(-1, 2), z[:POSE_DIM]
+
+    def move_key(self, shift: np.ndarray) -> None:
+        """Re-express the system after the key pose's linearisation point moved by ``shift``:
+        dx_old = dx_new + shift, so the vector loses info[:, key] shift."""
+        self.vector = self.vector - self.info[:, :POSE_DIM] @ shift
+        self.key_pose = self.key_pose + shift
+
+    def landmark_covariances(self) -> np.ndarray | None:
+        """Marginal covariances (M, 2, 2) of the map: diagonal blocks of info^-1."""
+        if self._covariance_cache is None:
+            factor = self._factor()
+            if factor is None:
+                return None
+            inverse = cho_solve(factor, np.eye(self.info.shape[0]))
+            lm = np.arange(POSE_DIM, self.info.shape[0]).reshape(-1, 2)
+            self._covariance_cache = inverse[lm[:, :, None], lm[:, None, :]]
+        return self._covariance_cache
+
+    def _factor(self):
+        try:
+            return cho_factor(self.info, lower=True, check_finite=True)
+        except (LinAlgError, ValueError):
+            return None
+
+
+def observation_factor(poses: np.ndarray, landmarks: np.ndarray, y: np.ndarray, sensor: SensorConfig):
+    """J (P, 2, 5) = [H_x, H_l] and target (P, 2) = ytilde + H_l thetabar of (O)."""
+    sensor_pose = sensor_poses(poses, sensor)
+    ytilde = innovation(y.copy(), predict_observation(sensor_pose, landmarks))
+    H_l = landmark_jacobian(sensor_pose, landmarks)
+    H_x = pose_jacobian(poses, landmarks, sensor)
+    target = ytilde + np.einsum("pij,pj->pi", H_l, landmarks)
+    return np.concatenate([H_x, H_l], axis=-1), target
+
+
+def motion_residual(predicted: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """c_t = f(xbar_{t-1}, u) - xbar_t, yaw wrapped: what the observations moved the pose by."""
+    c = predicted - pose
+    c[2] = wrap_angle(c[2])
+    return c
+
+
+def _scatter(info: np.ndarray, vector: np.ndarray, index: np.ndarray, J: np.ndarray,
+             W: np.ndarray, target: np.ndarray) -> None:
+    """info[idx, idx] += J^T W J and vector[idx] += J^T W target for every factor (vectorised)."""
+    JtW = np.swapaxes(J, -1, -2) @ W
+    np.add.at(info, (index[:, :, None], index[:, None, :]), JtW @ J)
+    np.add.at(vector, index, np.einsum("fij,fj->fi", JtW, target))
+
+
+def marginalize(info: np.ndarray, vector: np.ndarray, kept: np.ndarray, eliminated: np.ndarray):
+    """Integrate the ``eliminated`` variables out of the information form (Schur complement)."""
+    if eliminated.size == 0:
+        return info[np.ix_(kept, kept)], vector[kept]
+    L_ee = info[np.ix_(eliminated, eliminated)]
+    L_ek = info[np.ix_(eliminated, kept)]
+    try:
+        factor = cho_factor(L_ee, lower=True)
+        X = cho_solve(factor, np.column_stack([L_ek, vector[eliminated]]))
+    except LinAlgError:
+        X = np.linalg.lstsq(L_ee, np.column_stack([L_ek, vector[eliminated]]), rcond=None)[0]
+    schur = info[np.ix_(kept, kept)] - L_ek.T @ X[:, :-1]
+    return 0.5 * (schur + schur.T), vector[kept] - L_ek.T @ X[:, -1]
