@@ -194,7 +194,7 @@ def test_streams_car_park(car_park):
     s = car_park_streams(car_park)
     assert len(s.observations) == 586 and s.observations.n_detections == 964
     counts = s.message_counts()
-    assert counts == {"/tf_static": 1, "/odom": 5001, "/control": 5001, "/landmark_observations": 586,
+    assert counts == {"/tf_static": 1, "/odom": 5001, "/tf": 5001, "/control": 5001, "/landmark_observations": 586,
                       "/ground_truth/position": 626, "/scan": 586, "/ground_truth/landmarks": 1}
     stamps, topics, _ = message_schedule(s)
     assert np.all(np.diff(stamps) >= 0)
@@ -216,7 +216,7 @@ def test_streams_victoria_park(victoria_park):
     from online_em_slam.kth.convert import victoria_park_streams
     s = victoria_park_streams(victoria_park)
     assert s.scans is None and s.landmarks is None
-    assert s.message_counts() == {"/tf_static": 1, "/odom": 61945, "/control": 61945,
+    assert s.message_counts() == {"/tf_static": 1, "/odom": 61945, "/tf": 61945, "/control": 61945,
                                   "/landmark_observations": 7230, "/ground_truth/position": 4466}
     np.testing.assert_allclose(s.observations.range, victoria_park.trees.range + victoria_park.trees.diameter / 2)
     assert s.start_time == pytest.approx(20.967)
@@ -234,7 +234,7 @@ def test_bag_round_trip_counts(car_park_bag):
     from online_em_slam.bagio import bag_topics, count_messages
     path, counts = car_park_bag
     assert (path / "metadata.yaml").is_file() and list(path.glob("*.mcap"))
-    expected = {"/tf_static": 1, "/odom": 5001, "/control": 5001, "/landmark_observations": 586,
+    expected = {"/tf_static": 1, "/odom": 5001, "/tf": 5001, "/control": 5001, "/landmark_observations": 586,
                 "/ground_truth/position": 626, "/scan": 586, "/ground_truth/landmarks": 1}
     assert counts == expected
     assert {t: n for t, (_, n) in bag_topics(path).items()} == expected
@@ -278,17 +278,17 @@ def test_bag_round_trip_values(car_park_bag, car_park):
             assert np.all(cols["id"] == -1) and msg.header.frame_id == "laser"
         elif topic == "/ground_truth/position" and k == 10:
             assert (msg.point.x, msg.point.y) == pytest.approx((cp.gps.x[10], cp.gps.y[10]))
-            assert msg.header.frame_id == "map"
+            assert msg.header.frame_id == "gps"
         elif topic == "/ground_truth/landmarks":
             cols = decode_message(msg, required=["x", "y", "id"])
             np.testing.assert_allclose(np.column_stack([cols["x"], cols["y"]]), cp.beacons, atol=1e-5)
             assert list(cols["id"]) == list(range(15))
         elif topic == "/tf_static":
-            (tf,) = msg.transforms
+            tf = msg.transforms[0]           # then map -> gps (test_tools.py)
             assert (tf.header.frame_id, tf.child_frame_id) == ("base_link", "laser")
             assert (tf.transform.translation.x, tf.transform.translation.y) == (3.78, 0.5)
     assert np.all(np.diff(log_order) >= -1e-9)   # header stamps = log times here, in order
-    assert sum(seen.values()) == 11802
+    assert sum(seen.values()) == 16803
 
 
 def test_read_bag_topic_filter_and_sqlite(tmp_path, car_park):
@@ -309,7 +309,7 @@ def test_convert_main_cli(tmp_path, capsys):
     from online_em_slam.kth.convert import main
     out = tmp_path / "cp"
     assert main(["car_park", str(out), "--no-progress"]) == 0
-    assert "11802 messages" in capsys.readouterr().out
+    assert "16803 messages" in capsys.readouterr().out
     assert main(["car_park", str(out), "--no-progress"]) == 1          # exists
     assert main(["car_park", str(out), "--no-progress", "--overwrite", "--storage", "sqlite3"]) == 0
     assert main(["car_park", str(tmp_path / "x"), "--data-dir", str(tmp_path / "nowhere")]) == 1

@@ -4,6 +4,7 @@ Command line::
 
     online-em-slam-convert {car_park,victoria_park} OUTPUT [--data-dir D]
                            [--storage mcap|sqlite3] [--overwrite] [--no-progress]
+                           [--no-map-to-gps]
 
 Two layers:
 
@@ -19,12 +20,14 @@ Topics (all stamps are dataset times in seconds):
 topic                       type                            frame        content
 ==========================  ==============================  ===========  =====================
 /tf_static                  tf2_msgs/msg/TFMessage          base_link    base_link -> laser (3.78, 0.5, 0)
+                                                            map          map -> gps (see below)
 /odom                       nav_msgs/msg/Odometry           odom         dead-reckoned base_link pose + twist
+/tf                         tf2_msgs/msg/TFMessage          odom         odom -> base_link (= /odom pose)
 /control                    geometry_msgs/msg/TwistStamped  base_link    linear.x = v_e, angular.z = alpha
 /scan                       sensor_msgs/msg/LaserScan       laser        Car Park only, with intensities
 /landmark_observations      sensor_msgs/msg/PointCloud2     laser        range/bearing, id = -1
-/ground_truth/position      geometry_msgs/msg/PointStamped  map          GPS fix (= laser point)
-/ground_truth/landmarks     sensor_msgs/msg/PointCloud2     map          Car Park beacons x, y, z, id
+/ground_truth/position      geometry_msgs/msg/PointStamped  gps          GPS fix (= laser point)
+/ground_truth/landmarks     sensor_msgs/msg/PointCloud2     gps          Car Park beacons x, y, z, id
 ==========================  ==============================  ===========  =====================
 
 Dead reckoning (/odom): the ACFR model of the rear-axle centre, Euler-integrated
@@ -43,7 +46,15 @@ configured noise").
 
 /scan: ranges as float32, "no return" (>= 81.9 m) written as +inf (REP 117),
 angle_min = -pi/2, angle_increment = 0.5 deg, range_max = 81.9, raw intensities.
-The /ground_truth/* frame ``map`` is the GPS east/north frame.
+TF tree: ``map -> odom`` comes from the SLAM node; the bag holds ``odom -> base_link``
+on /tf (the odometry source owns it, REP-105) and the static ``base_link -> laser``
+and ``map -> gps`` on /tf_static (latched).  The /ground_truth/* frame ``gps`` is the
+GPS east/north frame.  ``map -> gps`` places it for a node started at
+``initial_pose`` (0, 0, 0), the parameter files' default (map = the vehicle's
+start frame): the inverse of the start pose fitted to the first GPS metres
+(:func:`online_em_slam.evaluation.initial_pose_from_gps`, as ``online-em-slam
+run`` does), so the ground truth overlays the map in RViz.  A node started at
+the GPS-derived pose has map = gps: convert with ``--no-map-to-gps`` for it.
 """
 from __future__ import annotations
 
@@ -64,6 +75,7 @@ from .datasets import (VEHICLE, CarPark, GpsTrack, LaserScans, OdometryStream, V
 GROUND_TRUTH_LANDMARK_FIELDS = (("x", "f4"), ("y", "f4"), ("z", "f4"), ("id", "i4"))
 
 TOPIC_TF_STATIC = "/tf_static"
+TOPIC_TF = "/tf"
 TOPIC_ODOM = "/odom"
 TOPIC_CONTROL = "/control"
 TOPIC_SCAN = "/scan"
@@ -76,6 +88,7 @@ MSGTYPES = {
     TOPIC_GT_LANDMARKS: "sensor_msgs/msg/PointCloud2",
     TOPIC_CONTROL: "geometry_msgs/msg/TwistStamped",
     TOPIC_ODOM: "nav_msgs/msg/Odometry",
+    TOPIC_TF: "tf2_msgs/msg/TFMessage",
     TOPIC_GT_POSITION: "geometry_msgs/msg/PointStamped",
     TOPIC_SCAN: "sensor_msgs/msg/LaserScan",
     TOPIC_OBSERVATIONS: "sensor_msgs/msg/PointCloud2",
@@ -86,6 +99,8 @@ TOPIC_PRIORITY = {t: i for i, t in enumerate(MSGTYPES)}
 LATCHED_TOPICS = (TOPIC_TF_STATIC, TOPIC_GT_LANDMARKS)
 
 FRAME_MAP, FRAME_ODOM, FRAME_BASE, FRAME_LASER = "map", "odom", "base_link", "laser"
+#: Ground truth is in the GPS east/north frame, not the SLAM map frame (see the docstring).
+FRAME_GPS = "gps"
 
 
 # --------------------------------------------------------------------------- pure layer
@@ -146,7 +161,7 @@ class Streams:
         return float(np.min(np.concatenate(firsts)))
 
     def message_counts(self) -> dict[str, int]:
-        counts = {TOPIC_TF_STATIC: 1, TOPIC_ODOM: len(self.odom.times),
+        counts = {TOPIC_TF_STATIC: 1, TOPIC_ODOM: len(self.odom.times), TOPIC_TF: len(self.odom.times),
                   TOPIC_CONTROL: len(self.control), TOPIC_OBSERVATIONS: len(self.observations),
                   TOPIC_GT_POSITION: len(self.gps)}
         if self.scans is not None:
@@ -222,6 +237,29 @@ def build_streams(name: str, data_dir=None) -> Streams:
     return builder(data_dir=data_dir)
 
 
+def gps_frame_in_map(streams: Streams) -> tuple[float, float, float] | None:
+    """Pose (x, y, yaw) of the ``gps`` frame in the ``map`` frame of a node started at (0, 0, 0).
+
+    The node's map frame is then the base pose at the first motion input, which the
+    odometry also starts from; its pose in the GPS frame is fitted exactly as the
+    offline runner's ``--initial-pose gps`` does, and map -> gps is its inverse.
+    None when the GPS track cannot give a heading.
+    """
+    from ..evaluation import initial_pose_from_gps
+
+    if len(streams.gps) < 2 or len(streams.control.times) == 0:
+        return None
+    try:
+        start = initial_pose_from_gps(streams.gps.times, streams.gps.xy,
+                                      (streams.vehicle.sensor_x, streams.vehicle.sensor_y),
+                                      float(streams.control.times[0]), streams.odom.times, streams.odom.poses)
+    except ValueError:
+        return None
+    c, s = np.cos(start.yaw), np.sin(start.yaw)
+    # Inverse of (x, y, yaw): rotate the negated translation by -yaw.
+    return (float(-c * start.x - s * start.y), float(s * start.x - c * start.y), float(-start.yaw))
+
+
 def to_ns(t) -> np.ndarray:
     """Seconds -> integer nanoseconds (rounded)."""
     return np.round(np.asarray(t, dtype=np.float64) * 1e9).astype(np.int64)
@@ -232,7 +270,8 @@ def message_schedule(streams: Streams) -> tuple[np.ndarray, list[str], np.ndarra
     by stamp, then TOPIC_PRIORITY, then index."""
     t0 = streams.start_time
     per_topic = {TOPIC_TF_STATIC: np.array([t0]), TOPIC_CONTROL: streams.control.times,
-                 TOPIC_ODOM: streams.odom.times, TOPIC_GT_POSITION: streams.gps.times,
+                 TOPIC_ODOM: streams.odom.times, TOPIC_TF: streams.odom.times,
+                 TOPIC_GT_POSITION: streams.gps.times,
                  TOPIC_OBSERVATIONS: streams.observations.times}
     if streams.landmarks is not None:
         per_topic[TOPIC_GT_LANDMARKS] = np.array([t0])
@@ -257,8 +296,9 @@ def jazzy_typestore():
 class MessageFactory:
     """Builds rosbags message objects for the streams."""
 
-    def __init__(self, streams: Streams, typestore=None):
+    def __init__(self, streams: Streams, typestore=None, map_to_gps=None):
         self.s = streams
+        self.map_to_gps = map_to_gps
         self.ts = typestore or jazzy_typestore()
         T = self.ts.types
         self.Time = T["builtin_interfaces/msg/Time"]
@@ -290,19 +330,30 @@ class MessageFactory:
             is_bigendian=False, point_step=step, row_step=step * n,
             data=np.frombuffer(data, dtype=np.uint8).copy(), is_dense=True)
 
-    def tf_static(self, stamp_ns: int):
-        T, v = self.T, self.s.vehicle
-        tf = T["geometry_msgs/msg/TransformStamped"](
-            header=self.header(stamp_ns, FRAME_BASE), child_frame_id=FRAME_LASER,
+    def _transform(self, stamp_ns: int, parent: str, child: str, x: float, y: float, yaw: float):
+        T = self.T
+        return T["geometry_msgs/msg/TransformStamped"](
+            header=self.header(stamp_ns, parent), child_frame_id=child,
             transform=T["geometry_msgs/msg/Transform"](
-                translation=self.Vector3(x=float(v.sensor_x), y=float(v.sensor_y), z=0.0),
-                rotation=self._quat(0.0)))
-        return T["tf2_msgs/msg/TFMessage"](transforms=[tf])
+                translation=self.Vector3(x=float(x), y=float(y), z=0.0), rotation=self._quat(float(yaw))))
+
+    def tf_static(self, stamp_ns: int):
+        v = self.s.vehicle
+        transforms = [self._transform(stamp_ns, FRAME_BASE, FRAME_LASER, v.sensor_x, v.sensor_y, 0.0)]
+        if self.map_to_gps is not None:
+            transforms.append(self._transform(stamp_ns, FRAME_MAP, FRAME_GPS, *self.map_to_gps))
+        return self.T["tf2_msgs/msg/TFMessage"](transforms=transforms)
+
+    def tf(self, stamp_ns: int, i: int):
+        # odom -> base_link: the /odom pose again, as the odometry source would broadcast it.
+        x, y, yaw = self.s.odom.poses[i]
+        return self.T["tf2_msgs/msg/TFMessage"](
+            transforms=[self._transform(stamp_ns, FRAME_ODOM, FRAME_BASE, x, y, yaw)])
 
     def gt_landmarks(self, stamp_ns: int):
         lm = self.s.landmarks
         cols = {"x": lm[:, 0], "y": lm[:, 1], "z": np.zeros(len(lm)), "id": np.arange(len(lm), dtype=np.int32)}
-        return self._cloud(stamp_ns, FRAME_MAP, cols, GROUND_TRUTH_LANDMARK_FIELDS)
+        return self._cloud(stamp_ns, FRAME_GPS, cols, GROUND_TRUTH_LANDMARK_FIELDS)
 
     def control(self, stamp_ns: int, i: int):
         T, c = self.T, self.s.control
@@ -327,7 +378,7 @@ class MessageFactory:
     def gt_position(self, stamp_ns: int, i: int):
         g = self.s.gps
         return self.T["geometry_msgs/msg/PointStamped"](
-            header=self.header(stamp_ns, FRAME_MAP), point=self.Point(x=float(g.x[i]), y=float(g.y[i]), z=0.0))
+            header=self.header(stamp_ns, FRAME_GPS), point=self.Point(x=float(g.x[i]), y=float(g.y[i]), z=0.0))
 
     def scan(self, stamp_ns: int, i: int):
         sc = self.s.scans
@@ -351,13 +402,15 @@ class MessageFactory:
             return self.tf_static(stamp_ns)
         if topic == TOPIC_GT_LANDMARKS:
             return self.gt_landmarks(stamp_ns)
-        return {TOPIC_CONTROL: self.control, TOPIC_ODOM: self.odom, TOPIC_GT_POSITION: self.gt_position,
+        return {TOPIC_CONTROL: self.control, TOPIC_ODOM: self.odom, TOPIC_TF: self.tf,
+                TOPIC_GT_POSITION: self.gt_position,
                 TOPIC_SCAN: self.scan, TOPIC_OBSERVATIONS: self.observations}[topic](stamp_ns, i)
 
 
-def iter_messages(streams: Streams, typestore=None):
-    """Yield (stamp_ns, topic, msgtype, rosbags message) in time order."""
-    factory = MessageFactory(streams, typestore)
+def iter_messages(streams: Streams, typestore=None, map_to_gps=None):
+    """Yield (stamp_ns, topic, msgtype, rosbags message) in time order; ``map_to_gps``:
+    (x, y, yaw) of the static map -> gps transform, None to leave it out."""
+    factory = MessageFactory(streams, typestore, map_to_gps)
     stamps, topics, index = message_schedule(streams)
     for stamp, topic, i in zip(stamps.tolist(), topics, index.tolist()):
         yield stamp, topic, MSGTYPES[topic], factory.build(topic, stamp, i)
@@ -408,8 +461,9 @@ def _latched_qos():
 
 
 def write_bag(streams: Streams, output, storage: str = "mcap", progress: bool = True,
-              overwrite: bool = False, stream=None) -> dict[str, int]:
-    """Write the streams to a ROS 2 bag directory ``output``; returns messages per topic."""
+              overwrite: bool = False, stream=None, map_to_gps: bool = True) -> dict[str, int]:
+    """Write the streams to a ROS 2 bag directory ``output``; returns messages per topic.
+    ``map_to_gps``: add the static map -> gps transform (see the module docstring)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     output = Path(output)
@@ -430,7 +484,8 @@ def write_bag(streams: Streams, output, storage: str = "mcap", progress: bool = 
             qos = _latched_qos() if topic in LATCHED_TOPICS else ()
             conns[topic] = writer.add_connection(topic, MSGTYPES[topic], typestore=ts,
                                                  offered_qos_profiles=qos)
-        for stamp, topic, msgtype, msg in iter_messages(streams, ts):
+        gps_pose = gps_frame_in_map(streams) if map_to_gps else None
+        for stamp, topic, msgtype, msg in iter_messages(streams, ts, gps_pose):
             writer.write(conns[topic], stamp, ts.serialize_cdr(msg, msgtype))
             counts[topic] += 1
             bar.update()
@@ -439,9 +494,9 @@ def write_bag(streams: Streams, output, storage: str = "mcap", progress: bool = 
 
 
 def convert(name: str, output, data_dir=None, storage: str = "mcap", progress: bool = True,
-            overwrite: bool = False) -> dict[str, int]:
+            overwrite: bool = False, map_to_gps: bool = True) -> dict[str, int]:
     return write_bag(build_streams(name, data_dir), output, storage=storage, progress=progress,
-                     overwrite=overwrite)
+                     overwrite=overwrite, map_to_gps=map_to_gps)
 
 
 def _dir_size(path: Path) -> int:
@@ -460,11 +515,15 @@ def main(argv=None) -> int:
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing bag directory")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    parser.add_argument("--no-map-to-gps", action="store_true",
+                        help="leave out the static map -> gps transform (for a node started at the "
+                             "GPS-derived initial pose, whose map frame is the gps frame)")
     args = parser.parse_args(argv)
     t0 = time.monotonic()
     try:
         counts = convert(args.dataset, args.output, args.data_dir, args.storage,
-                         progress=not args.no_progress, overwrite=args.overwrite)
+                         progress=not args.no_progress, overwrite=args.overwrite,
+                         map_to_gps=not args.no_map_to_gps)
     except (FileNotFoundError, FileExistsError, ValueError) as exc:
         print(f"online-em-slam-convert: error: {exc}", file=sys.stderr)
         return 1
