@@ -16,11 +16,18 @@ Step k (1..T) carries the control u~_k applied over [t_{k-1}, t_k] and the scan
 taken at t_k = k dt from the true pose X_k.  The landmark layout and the route
 are deterministic; ``seed`` draws only the noises, so Monte Carlo replications
 share one map, as in the seed's 100-run experiment.
+
+Long runs (``ScenarioConfig.laps = L``): the route is a closed loop of
+waypoints, but the seed run starts on waypoint 0 while later laps pass it at
+the waypoint radius, so its first lap differs from the others and its 1500
+steps end mid-lap.  With laps the vehicle starts on the controller's periodic
+path (510 steps per lap with the defaults) and drives exactly L laps: every lap
+is the same closed path, with fresh noise (one random stream per lap).
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -62,6 +69,9 @@ class ScenarioConfig:
     outlier_scale: float = 25.0
     known_ids: bool = True
     seed: int = 0
+    # laps > 0: drive the closed route exactly ``laps`` times (n_steps is then
+    # derived, see drive_route); 0 keeps the seed run of n_steps steps.
+    laps: int = 0
 
 
 @dataclass
@@ -93,6 +103,8 @@ class Scenario:
     controls: np.ndarray            # (T, 2) noisy controls given to the filter
     stamps: np.ndarray              # (T+1,) t_k = k dt
     steps: list[SimStep] = field(default_factory=list)
+    # (L,) number of steps driven when each lap of the route is completed
+    lap_ends: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def initial_pose(self) -> np.ndarray:
@@ -153,27 +165,71 @@ def landmark_layout(cfg: ScenarioConfig) -> np.ndarray:
     return points + (side * offset)[:, None] * normals
 
 
-def drive_route(cfg: ScenarioConfig) -> tuple[np.ndarray, np.ndarray]:
-    """True poses (T+1, 3) and true controls (T, 2) along the cyclic waypoints (S1).
+def _drive(cfg: ScenarioConfig, pose: np.ndarray, steering: float, n_steps: int, laps: int
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steer around the cyclic waypoints from ``pose`` (heading for waypoint 1) for
+    ``n_steps`` steps, or until the ``laps``-th lap when laps > 0.
 
-    The loop is over time because the controller needs the current pose; it is
-    scalar arithmetic and costs a few ms for 1500 steps.
+    A lap ends at the step where the vehicle reaches waypoint 0 again (the
+    controller then turns to waypoint 1).  Returns poses (T+1, 3), controls
+    (T, 2) and lap ends (L,) in steps.  The loop is over time because the
+    controller needs the current pose; it is scalar arithmetic (a few ms).
     """
     waypoints = np.asarray(cfg.waypoints, dtype=float)
-    pose = np.array([waypoints[0, 0], waypoints[0, 1],
-                     math.atan2(waypoints[1, 1] - waypoints[0, 1], waypoints[1, 0] - waypoints[0, 0])])
-    poses = np.empty((cfg.n_steps + 1, 3))
-    controls = np.empty((cfg.n_steps, 2))
-    poses[0] = pose
-    target, steering = 1, 0.0
-    for k in range(cfg.n_steps):
+    poses, controls, lap_ends = [pose], [], []
+    target = 1
+    while len(controls) < n_steps or laps > 0:
         if math.hypot(*(waypoints[target] - pose[:2])) < cfg.waypoint_radius:
             target = (target + 1) % len(waypoints)
+            if target == 1:
+                lap_ends.append(len(controls))
+                if len(lap_ends) == laps:
+                    break
         steering = steer_towards(pose, waypoints[target], steering, cfg)
-        controls[k] = (cfg.speed, steering)
-        pose = bicycle_step(pose, controls[k], cfg.dt, cfg.wheelbase)
-        poses[k + 1] = pose
-    return poses, controls
+        controls.append((cfg.speed, steering))
+        pose = bicycle_step(pose, np.asarray(controls[-1]), cfg.dt, cfg.wheelbase)
+        poses.append(pose)
+    return (np.array(poses), np.array(controls, dtype=float).reshape(-1, 2),
+            np.array(lap_ends, dtype=np.int64))
+
+
+def route_start(cfg: ScenarioConfig) -> np.ndarray:
+    """Start of the seed run: on waypoint 0, heading for waypoint 1."""
+    w = np.asarray(cfg.waypoints, dtype=float)
+    return np.array([w[0, 0], w[0, 1], math.atan2(w[1, 1] - w[0, 1], w[1, 0] - w[0, 0])])
+
+
+def periodic_start(cfg: ScenarioConfig, tolerance: float = 1e-9, max_laps: int = 50
+                   ) -> tuple[np.ndarray, float]:
+    """(pose, steering) at the lap boundary of the controller's periodic path.
+
+    From the seed start the first lap differs from the later ones (by up to
+    2.3 m: the vehicle starts on waypoint 0 instead of passing it at the
+    waypoint radius); the lap-boundary state then converges to a fixed point
+    within a few laps (510 steps per lap with the defaults).  Starting there
+    makes every lap the same closed path.
+    """
+    pose, steering = route_start(cfg), 0.0
+    for _ in range(max_laps):
+        poses, controls, _ = _drive(cfg, pose, steering, 0, laps=1)
+        if np.max(np.abs(poses[-1] - pose)) < tolerance and abs(controls[-1, 1] - steering) < tolerance:
+            break
+        pose, steering = poses[-1], float(controls[-1, 1])
+    return pose, steering
+
+
+def drive_route(cfg: ScenarioConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """True poses (T+1, 3), true controls (T, 2) and lap ends (L,) (S1).
+
+    ``laps == 0``: the seed run, ``n_steps`` steps from waypoint 0 (about 2.7
+    laps).  ``laps > 0``: the route's periodic path (:func:`periodic_start`)
+    driven exactly ``laps`` times, so T = laps x the lap length and the run
+    ends where it started.
+    """
+    if cfg.laps > 0:
+        pose, steering = periodic_start(cfg)
+        return _drive(cfg, pose, steering, 0, cfg.laps)
+    return _drive(cfg, route_start(cfg), 0.0, cfg.n_steps, 0)
 
 
 def noise_config(cfg: ScenarioConfig) -> ObservationNoiseConfig:
@@ -186,24 +242,51 @@ def noise_config(cfg: ScenarioConfig) -> ObservationNoiseConfig:
     return ObservationNoiseConfig(sigma_range=cfg.sigma_range, sigma_bearing=cfg.sigma_bearing, rho=cfg.rho)
 
 
+def draw_noise(rng: np.random.Generator, cfg: ScenarioConfig, n_steps: int, n_landmarks: int
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Control noise V (T, 2) (S2), observation noise W (T, M, 2) and outlier flags
+    (T, M) (S3) for every (step, landmark) pair, drawn in this order from ``rng``."""
+    V = rng.standard_normal((n_steps, 2)) * np.array([cfg.sigma_speed, cfg.sigma_steering])
+    R = noise_covariance(ObservationNoiseConfig(sigma_range=cfg.sigma_range,
+                                                sigma_bearing=cfg.sigma_bearing, rho=cfg.rho),
+                         np.zeros(()))
+    W = rng.standard_normal((n_steps, n_landmarks, 2)) @ np.linalg.cholesky(R).T   # W ~ N(0, R)
+    outlier = rng.random((n_steps, n_landmarks)) < cfg.outlier_probability
+    W = np.where(outlier[..., None], math.sqrt(cfg.outlier_scale) * W, W)          # N(0, s R)
+    return V, W, outlier
+
+
+def run_noise(cfg: ScenarioConfig, n_steps: int, n_landmarks: int, lap_ends: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`draw_noise` for the whole run.  With laps, each lap draws from its
+    own stream (SeedSequence(seed).spawn): fresh noise every lap, and an L-lap
+    run is the exact prefix of any longer one, so checkpoints after each lap of
+    a long run equal separate shorter runs."""
+    if cfg.laps <= 0:
+        return draw_noise(np.random.default_rng(cfg.seed), cfg, n_steps, n_landmarks)
+    bounds = np.concatenate([[0], lap_ends])
+    streams = np.random.SeedSequence(cfg.seed).spawn(len(lap_ends))
+    laps = [draw_noise(np.random.default_rng(stream), cfg, int(b - a), n_landmarks)
+            for stream, a, b in zip(streams, bounds[:-1], bounds[1:])]
+    return tuple(np.concatenate(parts) for parts in zip(*laps))
+
+
 def simulate(cfg: ScenarioConfig | None = None) -> Scenario:
-    """Simulate one run: true trajectory (S1), noisy controls (S2), scans (S3)."""
+    """Simulate one run: true trajectory (S1), noisy controls (S2), scans (S3).
+
+    With ``cfg.laps > 0`` the returned ``config.n_steps`` is the derived run length.
+    """
     cfg = cfg or ScenarioConfig()
-    rng = np.random.default_rng(cfg.seed)
     landmarks = landmark_layout(cfg)
-    poses, true_controls = drive_route(cfg)
-    noise = rng.standard_normal(true_controls.shape) * np.array([cfg.sigma_speed, cfg.sigma_steering])
-    controls = true_controls + noise
+    poses, true_controls, lap_ends = drive_route(cfg)
+    if cfg.laps > 0:
+        cfg = replace(cfg, n_steps=len(true_controls))
+    V, W, outlier = run_noise(cfg, len(true_controls), len(landmarks), lap_ends)
+    controls = true_controls + V
 
     # All (step, landmark) pairs at once: visible if within range and in front.
     clean = predict_observation(poses[1:, None, :], landmarks[None, :, :])        # (T, M, 2)
     visible = (clean[..., 0] <= cfg.max_range) & (np.abs(clean[..., 1]) <= math.pi / 2)
-    R = noise_covariance(ObservationNoiseConfig(sigma_range=cfg.sigma_range,
-                                                sigma_bearing=cfg.sigma_bearing, rho=cfg.rho),
-                         np.zeros(()))
-    W = rng.standard_normal(clean.shape) @ np.linalg.cholesky(R).T              # W ~ N(0, R)
-    outlier = rng.random(visible.shape) < cfg.outlier_probability
-    W = np.where(outlier[..., None], math.sqrt(cfg.outlier_scale) * W, W)        # N(0, s R)
     measured = clean + W
     measured[..., 0] = np.abs(measured[..., 0])   # a range is never negative (only matters < 2 m)
     measured[..., 1] = wrap_angle(measured[..., 1])
@@ -219,7 +302,7 @@ def simulate(cfg: ScenarioConfig | None = None) -> Scenario:
                              ids=ids.astype(np.int64), true_ids=seen.astype(np.int64),
                              outlier=outlier[k, seen]))
     return Scenario(config=cfg, true_poses=poses, landmarks=landmarks, true_controls=true_controls,
-                    controls=controls, stamps=stamps, steps=steps)
+                    controls=controls, stamps=stamps, steps=steps, lap_ends=lap_ends)
 
 
 def slam_config_for(scenario: Scenario | ScenarioConfig, num_particles: int = 100,

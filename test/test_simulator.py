@@ -145,3 +145,33 @@ def test_helpers():
         feed(rec, step)
     assert rec.calls == [("u", 0.0), ("y", 0.2), ("u", 0.2), ("y", pytest.approx(0.4)),
                          ("u", pytest.approx(0.4)), ("y", pytest.approx(0.6))]
+
+
+def test_laps_repeat_the_same_closed_path_with_fresh_noise():
+    s = simulate(ScenarioConfig(laps=3, seed=2))
+    ends = s.lap_ends
+    lap = int(ends[0])
+    assert list(ends) == [lap, 2 * lap, 3 * lap] and s.n_steps == s.config.n_steps == 3 * lap
+    # The same true path every lap (the controller's periodic path), closed on itself.
+    np.testing.assert_allclose(s.true_poses[lap:2 * lap + 1], s.true_poses[:lap + 1], atol=1e-6)
+    np.testing.assert_allclose(s.true_poses[-1], s.true_poses[0], atol=1e-6)
+    np.testing.assert_allclose(s.true_controls[2 * lap:], s.true_controls[:lap], atol=1e-6)
+    # Fresh noise each lap: the noise of two laps is uncorrelated.
+    noise = s.controls - s.true_controls
+    first, second = noise[:lap, 0], noise[lap:2 * lap, 0]
+    assert abs(np.corrcoef(first, second)[0, 1]) < 0.15
+    assert np.std(noise[:, 0]) == pytest.approx(0.5, rel=0.1)
+
+
+def test_a_short_laps_run_is_the_prefix_of_a_longer_one():
+    short, long = simulate(ScenarioConfig(laps=1, seed=4)), simulate(ScenarioConfig(laps=3, seed=4))
+    T = short.n_steps
+    assert long.lap_ends[0] == T
+    assert np.array_equal(short.true_poses, long.true_poses[:T + 1])
+    assert np.array_equal(short.controls, long.controls[:T])
+    for a, b in zip(short.steps, long.steps[:T]):
+        assert np.array_equal(a.ranges, b.ranges) and np.array_equal(a.bearings, b.bearings)
+    # The seed run (laps = 0) is unchanged: n_steps steps from waypoint 0, laps counted.
+    seed_run = simulate(ScenarioConfig(seed=4))
+    assert seed_run.n_steps == 1500 and np.array_equal(seed_run.true_poses[0], [0.0, 0.0, seed_run.true_poses[0, 2]])
+    assert len(seed_run.lap_ends) == 2
