@@ -4,6 +4,8 @@
   (Hungarian assignment on Euclidean distances, pairs farther than ``gate`` never
   match); RMSE over the matched pairs, true landmarks left unmatched (missed) and
   estimates left unmatched (spurious, including duplicates of a mapped landmark).
+* :func:`map_error_split` / :func:`map_error`: landmark RMSE split into *shape*
+  and *frame* (below).
 * :func:`trajectory_metrics`: position error of an estimated track against
   ground-truth positions.  The estimate is interpolated linearly at the
   ground-truth times (only inside the estimate's time span; ground-truth samples
@@ -69,6 +71,8 @@ class LandmarkMetrics:
     mean_error: float
     max_error: float
     gate: float
+    shape_error: float = math.nan     # RMSE after the best rigid fit (see map_error_split)
+    frame_error: float = math.nan     # sqrt(rmse^2 - shape_error^2)
     matches: list[LandmarkMatch] = field(default_factory=list)
     missed: list[int] = field(default_factory=list)       # indices into the true landmarks
     spurious: list[int] = field(default_factory=list)     # ids of the unmatched estimates
@@ -105,15 +109,106 @@ def landmark_metrics(estimated, truth, gate: float = DEFAULT_MATCH_GATE, estimat
     matched_true = {m.true_index for m in matches}
     matched_est = {m.estimate_index for m in matches}
     errors = np.array([m.error for m in matches])
+    _, shape, frame = map_error_split(est[[m.estimate_index for m in matches]],
+                                      tru[[m.true_index for m in matches]])
     return LandmarkMetrics(
         n_true=len(tru), n_estimated=len(est), n_matched=len(matches),
         n_missed=len(tru) - len(matches), n_spurious=len(est) - len(matches),
         rmse=float(np.sqrt(np.mean(errors ** 2))) if errors.size else math.nan,
         mean_error=float(errors.mean()) if errors.size else math.nan,
         max_error=float(errors.max()) if errors.size else math.nan,
-        gate=float(gate), matches=matches,
+        gate=float(gate), shape_error=float(shape), frame_error=float(frame), matches=matches,
         missed=[i for i in range(len(tru)) if i not in matched_true],
         spurious=[int(ids[j]) for j in range(len(est)) if j not in matched_est])
+
+
+# --------------------------------------------------------------------------- map shape and frame
+#
+# Landmark RMSE mixes two different failures: a map that is the right shape but
+# rotated / shifted as a whole (the gauge a SLAM run fixes only through its
+# initial pose and its drift: the *frame* error) and a deformed map (the
+# *shape* error).  Definitions, for n landmarks e_i estimated, t_i true, paired:
+#
+#     rmse^2  = 1/n sum |e_i - t_i|^2
+#     shape^2 = min over rotations R, translations c of 1/n sum |R e_i + c - t_i|^2
+#     frame^2 = rmse^2 - shape^2     (>= 0: R = I, c = 0 is a candidate)
+#
+# so rmse^2 = shape^2 + frame^2: frame is the part of the error that one rigid
+# motion of the whole map removes.  No scale: range measurements fix it.
+
+def rotate_points(points, angle) -> np.ndarray:
+    """Points (..., n, 2) rotated by ``angle`` (...,) about the origin."""
+    p = np.asarray(points, dtype=float)
+    c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
+    return np.stack([c * p[..., 0] - s * p[..., 1], s * p[..., 0] + c * p[..., 1]], axis=-1)
+
+
+def rigid_fit_2d(estimated, truth) -> tuple[np.ndarray, np.ndarray]:
+    """Best rigid motion of ``estimated`` onto ``truth`` (2-D Kabsch, closed form).
+
+    estimated, truth: (..., n, 2), rows paired; leading axes are a batch.
+    Returns the rotation angle (...,) and translation c (..., 2) minimising
+    sum_i |R(angle) e_i + c - t_i|^2: with centred points a_i, b_i the angle is
+    atan2(sum a_i x b_i, sum a_i . b_i) and c = mean(t) - R mean(e).
+    """
+    e, t = np.asarray(estimated, dtype=float), np.asarray(truth, dtype=float)
+    mu_e, mu_t = e.mean(axis=-2, keepdims=True), t.mean(axis=-2, keepdims=True)
+    a, b = e - mu_e, t - mu_t
+    angle = np.arctan2(np.sum(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0], axis=-1),
+                       np.sum(a * b, axis=(-2, -1)))
+    return angle, (mu_t - rotate_points(mu_e, angle))[..., 0, :]
+
+
+def map_error_split(estimated, truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Landmark RMSE, shape error and frame error (...,) of estimated vs true
+    landmarks (..., n, 2), rows paired (definitions above); NaN when n = 0."""
+    e, t = np.asarray(estimated, dtype=float), np.asarray(truth, dtype=float)
+    if e.shape[-2] == 0:
+        nan = np.full(e.shape[:-2], np.nan)
+        return nan, nan.copy(), nan.copy()
+    mse = np.mean(np.sum((e - t) ** 2, axis=-1), axis=-1)
+    angle, c = rigid_fit_2d(e, t)
+    # Residuals of the fitted map rather than the closed-form minimum
+    # |a|^2 + |b|^2 - 2 |(sum a.b, sum a x b)|, which cancels badly for large maps.
+    fitted = rotate_points(e, angle) + c[..., None, :]
+    shape_sq = np.minimum(np.mean(np.sum((fitted - t) ** 2, axis=-1), axis=-1), mse)  # <= mse up to round-off
+    return np.sqrt(mse), np.sqrt(shape_sq), np.sqrt(mse - shape_sq)
+
+
+def landmark_pairs_by_id(ids, positions, truth) -> tuple[np.ndarray, np.ndarray]:
+    """Estimated (n, 2) and true (n, 2) positions of the estimates whose id
+    indexes the true landmarks (K, 2) (known association, as in simulation)."""
+    ids = np.asarray(ids, dtype=int).reshape(-1)
+    pos = np.asarray(positions, dtype=float).reshape(-1, 2)
+    tru = np.asarray(truth, dtype=float).reshape(-1, 2)
+    keep = (ids >= 0) & (ids < len(tru)) & np.all(np.isfinite(pos), axis=1)
+    return pos[keep], tru[ids[keep]]
+
+
+@dataclass
+class MapError:
+    """Result of :func:`map_error` (metres, degrees)."""
+
+    n: int
+    rmse: float
+    shape_error: float
+    frame_error: float
+    rotation_deg: float        # the best rigid fit of the estimate onto the truth
+    translation: list[float]
+
+    def to_dict(self) -> dict:
+        return _clean(asdict(self))
+
+
+def map_error(estimated, truth) -> MapError:
+    """:func:`map_error_split` of one map (n, 2) vs (n, 2), with the fitted motion."""
+    e = np.asarray(estimated, dtype=float).reshape(-1, 2)
+    t = np.asarray(truth, dtype=float).reshape(-1, 2)
+    rmse, shape, frame = (float(v) for v in map_error_split(e, t))
+    if len(e) == 0:
+        return MapError(0, rmse, shape, frame, math.nan, [math.nan, math.nan])
+    angle, c = rigid_fit_2d(e, t)
+    return MapError(len(e), rmse, shape, frame, float(np.degrees(angle)), [float(c[0]), float(c[1])])
 
 
 # --------------------------------------------------------------------------- geometry

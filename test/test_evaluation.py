@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from online_em_slam.evaluation import (initial_pose_from_gps, interpolate_poses, interpolate_positions,
-                                       landmark_metrics, rigid_alignment, sensor_points, timing_metrics,
+                                       landmark_metrics, landmark_pairs_by_id, map_error, map_error_split,
+                                       rigid_alignment, rigid_fit_2d, sensor_points, timing_metrics,
                                        trajectory_metrics)
 
 TRUTH = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0]])
@@ -117,3 +118,80 @@ def test_sensor_points_and_initial_pose_from_gps_on_a_curve():
     rough = initial_pose_from_gps(gps_t, gps[2::4], offset, start_time=0.0)
     np.testing.assert_allclose(sensor_points(np.array([rough.pose]), offset)[0], gps[2], atol=1e-9)
     assert abs(rough.yaw - true_start[2]) > 0.05
+
+
+# --------------------------------------------------------------------------- shape and frame
+
+def _rotation(angle: float) -> np.ndarray:
+    return np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
+
+
+def test_a_rigidly_moved_map_has_zero_shape_error_and_all_of_it_is_frame():
+    rng = np.random.default_rng(11)
+    truth = rng.uniform(-50, 50, (20, 2))
+    estimated = (truth - [10.0, 5.0]) @ _rotation(0.2).T + [3.0, -7.0]
+    rmse_direct = math.sqrt(np.mean(np.sum((estimated - truth) ** 2, axis=1)))
+    rmse, shape, frame = map_error_split(estimated, truth)
+    assert rmse == pytest.approx(rmse_direct) and rmse > 5.0
+    assert shape == pytest.approx(0.0, abs=1e-9)
+    assert frame == pytest.approx(rmse_direct, rel=1e-9)
+    result = map_error(estimated, truth)
+    assert result.rotation_deg == pytest.approx(math.degrees(-0.2))        # undoes the rotation
+    np.testing.assert_allclose(estimated @ _rotation(-0.2).T + result.translation, truth, atol=1e-9)
+
+
+def test_a_deformation_without_rigid_part_is_all_shape():
+    # Points on a circle pushed radially by +-1 m alternately: centroid, rotation fixed.
+    angles = np.linspace(0.0, 2 * math.pi, 8, endpoint=False)
+    unit = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    truth = 20.0 * unit
+    estimated = truth + np.where(np.arange(8) % 2 == 0, 1.0, -1.0)[:, None] * unit
+    rmse, shape, frame = map_error_split(estimated, truth)
+    assert rmse == pytest.approx(1.0) and shape == pytest.approx(1.0) and frame == pytest.approx(0.0, abs=1e-6)
+
+
+def test_rigid_fit_matches_an_independent_least_squares_solution():
+    """The closed form against scipy's iterative least squares over (angle, c) on noisy data."""
+    from scipy.optimize import least_squares
+
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        truth = rng.uniform(-40, 40, (15, 2))
+        estimated = truth @ _rotation(rng.uniform(-1, 1)).T + rng.normal(0, 5, 2) + rng.normal(0, 1.5, (15, 2))
+
+        def residuals(p):
+            return (estimated @ _rotation(p[0]).T + p[1:] - truth).ravel()
+
+        fit = least_squares(residuals, x0=np.zeros(3), xtol=1e-14, ftol=1e-14, gtol=1e-14)
+        angle, c = rigid_fit_2d(estimated, truth)
+        assert angle == pytest.approx(fit.x[0], abs=1e-7)
+        np.testing.assert_allclose(c, fit.x[1:], atol=1e-6)
+        rmse, shape, frame = map_error_split(estimated, truth)
+        assert shape == pytest.approx(math.sqrt(np.mean(fit.fun ** 2 * 2)), rel=1e-8)
+        assert rmse ** 2 == pytest.approx(shape ** 2 + frame ** 2)
+        R, t = rigid_alignment(estimated, truth)                     # the SVD form agrees
+        np.testing.assert_allclose(R, _rotation(float(angle)), atol=1e-9)
+
+
+def test_shape_and_frame_are_vectorised_over_maps_and_handle_small_maps():
+    rng = np.random.default_rng(2)
+    est, tru = rng.normal(size=(4, 6, 2)), rng.normal(size=(4, 6, 2))
+    batch = np.stack(map_error_split(est, tru), axis=-1)                 # (4, 3)
+    loop = np.array([map_error_split(e, t) for e, t in zip(est, tru)])
+    np.testing.assert_allclose(batch, loop, rtol=1e-12)
+    assert rigid_fit_2d(est, tru)[1].shape == (4, 2)
+    rmse, shape, frame = map_error_split([[1.0, 1.0]], [[0.0, 0.0]])      # one landmark: all frame
+    assert (rmse, shape, frame) == pytest.approx((math.sqrt(2), 0.0, math.sqrt(2)))
+    assert all(math.isnan(v) for v in map_error_split(np.zeros((0, 2)), np.zeros((0, 2))))
+    assert map_error(np.zeros((0, 2)), np.zeros((0, 2))).to_dict()["rmse"] is None
+
+
+def test_pairs_by_id_and_the_landmark_metrics_split():
+    est, tru = landmark_pairs_by_id([2, -1, 0, 7], [[1, 1], [5, 5], [2, 2], [9, 9]], TRUTH)
+    np.testing.assert_array_equal(est, [[1, 1], [2, 2]])
+    np.testing.assert_array_equal(tru, [TRUTH[2], TRUTH[0]])
+    shifted = TRUTH + [0.3, -0.4]                                       # a pure shift: 0.5 m of frame
+    m = landmark_metrics(shifted, TRUTH, gate=2.0)
+    assert m.rmse == pytest.approx(0.5) and m.frame_error == pytest.approx(0.5)
+    assert m.shape_error == pytest.approx(0.0, abs=1e-7)
+    assert math.isnan(landmark_metrics(np.zeros((0, 2)), TRUTH).shape_error)
