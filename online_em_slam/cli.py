@@ -392,7 +392,8 @@ def summary_line(metrics: dict) -> str:
     lm = metrics.get("landmarks")
     if lm:
         parts.append(f"landmarks {lm['n_matched']}/{lm['n_true']} mapped, {lm['n_spurious']} spurious, "
-                     f"RMSE {_fmt(lm['rmse'])} m;")
+                     f"RMSE {_fmt(lm['rmse'])} m (shape {_fmt(lm.get('shape_error'))}, "
+                     f"frame {_fmt(lm.get('frame_error'))});")
     tr = metrics.get("trajectory")
     if tr:
         parts.append(f"trajectory RMSE {_fmt(tr['rmse'])} m (median {_fmt(tr['median'])}, max {_fmt(tr['max'])});")
@@ -417,8 +418,8 @@ def cmd_run(args) -> int:
     return 0
 
 
-COMPARISON_COLUMNS = ("method", "beacons mapped", "spurious", "beacon RMSE (m)", "trajectory RMSE (m)",
-                      "mean ms/step", "real-time factor")
+COMPARISON_COLUMNS = ("method", "beacons mapped", "spurious", "beacon RMSE (m)", "shape (m)", "frame (m)",
+                      "trajectory RMSE (m)", "mean ms/step", "real-time factor")
 
 
 def comparison_row(metrics: dict) -> dict:
@@ -429,6 +430,8 @@ def comparison_row(metrics: dict) -> dict:
         "beacons_true": None if lm is None else lm["n_true"],
         "spurious": None if lm is None else lm["n_spurious"],
         "beacon_rmse_m": None if lm is None else lm["rmse"],
+        "beacon_shape_error_m": None if lm is None else lm.get("shape_error"),
+        "beacon_frame_error_m": None if lm is None else lm.get("frame_error"),
         "trajectory_rmse_m": None if tr is None else tr["rmse"],
         "trajectory_median_m": None if tr is None else tr["median"],
         "n_landmarks": metrics["n_landmarks"],
@@ -442,13 +445,15 @@ def comparison_row(metrics: dict) -> dict:
 def comparison_markdown(rows: list[dict], bag: str, params: str, seed, particles) -> str:
     lines = [f"# Method comparison on `{Path(bag).name}`", "",
              f"Params `{params}`, seed {seed}, {particles} particles (particle methods); "
-             "landmark metrics over confirmed landmarks, one-to-one matching within the match gate; "
+             "landmark metrics over confirmed landmarks, one-to-one matching within the match gate "
+             "(shape: RMSE after the best rigid 2-D fit onto the truth; frame = sqrt(RMSE^2 - shape^2)); "
              "trajectory error of the sensor point against GPS, no alignment.", "",
              "| " + " | ".join(COMPARISON_COLUMNS) + " |", "|" + "---|" * len(COMPARISON_COLUMNS)]
     for r in rows:
         mapped = "n/a" if r["beacons_mapped"] is None else f"{r['beacons_mapped']}/{r['beacons_true']}"
         spurious = "n/a" if r["spurious"] is None else str(r["spurious"])
         lines.append(f"| {r['method']} | {mapped} | {spurious} | {_fmt(r['beacon_rmse_m'])} | "
+                     f"{_fmt(r['beacon_shape_error_m'])} | {_fmt(r['beacon_frame_error_m'])} | "
                      f"{_fmt(r['trajectory_rmse_m'])} | {_fmt(r['mean_ms_per_step'], 2)} | "
                      f"{_fmt(r['real_time_factor'], 1)} |")
     return "\n".join(lines) + "\n"

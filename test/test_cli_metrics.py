@@ -1,0 +1,19 @@
+"""Shape and frame error in the offline runner's printed summary and comparison table."""
+from online_em_slam import cli
+
+
+def _metrics(method: str) -> dict:
+    return {"method": method, "n_landmarks": 16, "n_confirmed_landmarks": 15,
+            "landmarks": {"n_matched": 15, "n_true": 15, "n_spurious": 1, "rmse": 0.25,
+                          "shape_error": 0.15, "frame_error": 0.2},
+            "timing": {"mean_step_ms": 1.0, "p99_step_ms": 2.0, "real_time_factor": 100.0,
+                       "wall_time_s": 1.25, "dataset_duration_s": 125.0}}
+
+
+def test_summary_and_comparison_report_shape_and_frame():
+    assert "RMSE 0.250 m (shape 0.150, frame 0.200)" in cli.summary_line(_metrics("online_em"))
+    rows = [cli.comparison_row(_metrics("online_em")), cli.comparison_row(_metrics("ekf_slam"))]
+    assert rows[0]["beacon_shape_error_m"] == 0.15 and rows[0]["beacon_frame_error_m"] == 0.2
+    text = cli.comparison_markdown(rows, "bag", "params.yaml", 0, 100)
+    assert "| beacon RMSE (m) | shape (m) | frame (m) |" in text
+    assert "| ekf_slam | 15/15 | 1 | 0.250 | 0.150 | 0.200 |" in text
