@@ -20,15 +20,33 @@ M_STEPS = ("complete", "observed")
 
 
 def _check_range(name: str, value: float, low: float, high: float,
-                 low_open: bool = False) -> None:
+                 low_open: bool = False, high_open: bool = False) -> None:
     try:
         number = float(value)
     except (TypeError, ValueError):
         raise ValueError(f"{name} = {value!r} is not a number") from None
-    ok = math.isfinite(number) and (number > low if low_open else number >= low) and number <= high
+    ok = (math.isfinite(number) and (number > low if low_open else number >= low)
+          and (number < high if high_open else number <= high))
     if not ok:
-        bracket = "(" if low_open else "["
-        raise ValueError(f"{name} = {value!r} is outside the allowed range {bracket}{low}, {high}]")
+        brackets = ("(" if low_open else "[", ")" if high_open else "]")
+        raise ValueError(f"{name} = {value!r} is outside the allowed range {brackets[0]}{low}, {high}{brackets[1]}")
+
+
+def _check_length(name: str, value: Any, length: int | None = None, meaning: str = "") -> tuple:
+    """``value`` as a tuple of ``length`` entries (any non-zero length if None).
+
+    A scalar or a wrong-length list is refused rather than broadcast: numpy would
+    silently spread [1.0] over x, y and yaw, and [1.0, 1.0] fails only at the next
+    reset, long after the parameter was accepted.
+    """
+    try:
+        entries = tuple(value)
+    except TypeError:
+        entries = None
+    if entries is None or (len(entries) != length if length is not None else not entries):
+        expected = f"exactly {length} numbers" if length is not None else "at least one number"
+        raise ValueError(f"{name} = {value!r} must be a list of {expected}{meaning}")
+    return entries
 
 
 def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
@@ -127,12 +145,18 @@ class ObservationNoiseConfig:
         limit = 0.999 * self.sigma_range * self.sigma_bearing
         _check_range(f"{prefix}.rho", self.rho, -limit, limit)
         _check_range(f"{prefix}.range_growth", self.range_growth, 0.0, 1.0)
-        if len(self.mixture_weights) != len(self.mixture_scales) or not self.mixture_weights:
+        weights = _check_length(f"{prefix}.mixture_weights", self.mixture_weights)
+        scales = _check_length(f"{prefix}.mixture_scales", self.mixture_scales)
+        if len(weights) != len(scales):
             raise ValueError(f"{prefix}.mixture_weights and {prefix}.mixture_scales must have the same, non-zero length")
-        if abs(sum(self.mixture_weights) - 1.0) > 1e-6 or min(self.mixture_weights) < 0:
+        # Each entry on its own: NaN compares False with everything, so a NaN weight
+        # would pass the sum and sign tests below and give degenerate particle weights.
+        for weight in weights:
+            _check_range(f"{prefix}.mixture_weights", weight, 0.0, 1.0)
+        for scale in scales:
+            _check_range(f"{prefix}.mixture_scales", scale, 0.0, 1e6, low_open=True)
+        if abs(math.fsum(float(w) for w in weights) - 1.0) > 1e-6:
             raise ValueError(f"{prefix}.mixture_weights = {self.mixture_weights} must be non-negative and sum to 1")
-        if min(self.mixture_scales) <= 0:
-            raise ValueError(f"{prefix}.mixture_scales = {self.mixture_scales} must be positive")
 
 
 @dataclass
@@ -151,7 +175,7 @@ class FilterConfig:
         _check_range(f"{prefix}.resample_threshold", self.resample_threshold, 0.0, 1.0)
         _check_choice(f"{prefix}.smoother", self.smoother, SMOOTHERS)
         _check_range(f"{prefix}.paris_draws", self.paris_draws, 1, 100)
-        for std in self.initial_pose_std:
+        for std in _check_length(f"{prefix}.initial_pose_std", self.initial_pose_std, 3, " (x, y, yaw)"):
             _check_range(f"{prefix}.initial_pose_std", std, 0.0, 1e3)
 
 
@@ -224,11 +248,11 @@ class AssociationConfig:
     gate_heading_std: float = 0.0
 
     def validate(self, prefix: str = "association") -> None:
-        _check_range(f"{prefix}.gate_probability", self.gate_probability, 0.0, 1.0, low_open=True)
+        # Both gates are chi-square quantiles: a probability of 1 is an infinite gate.
+        _check_range(f"{prefix}.gate_probability", self.gate_probability, 0.0, 1.0,
+                     low_open=True, high_open=True)
         _check_range(f"{prefix}.new_landmark_probability", self.new_landmark_probability,
-                     self.gate_probability, 1.0)
-        if self.new_landmark_probability >= 1.0 or self.gate_probability >= 1.0:
-            raise ValueError(f"{prefix}.gate_probability and new_landmark_probability must be < 1")
+                     self.gate_probability, 1.0, high_open=True)
         _check_range(f"{prefix}.confirm_observations", self.confirm_observations, 1, 1000)
         _check_range(f"{prefix}.tentative_timeout", self.tentative_timeout, 1, 1000000)
         _check_range(f"{prefix}.min_observations_for_weighting", self.min_observations_for_weighting, 1, 1000)

@@ -613,44 +613,45 @@ class OnlineEMSlam:
                    "_spread", "_avg_stats", "_avg_count")
 
     def save_map(self, path: str) -> None:
-        """Write map, statistics and counts atomically (temporary file + rename)."""
-        path = os.fspath(path)
-        directory = os.path.dirname(os.path.abspath(path))
-        os.makedirs(directory, exist_ok=True)
+        """Write map, statistics, counts and pose atomically (core/mapfile.py).
+
+        The values are validated first: a non-finite estimate never replaces a good
+        file.  The directory must exist (callers decide where files may be created).
+        """
+        from . import mapfile  # noqa: PLC0415
         data = {name.lstrip("_"): getattr(self, name) for name in self._MAP_FIELDS}
-        data["version"] = np.array(MAP_FORMAT_VERSION)
         data["pose"] = self.pose().mean
-        fd, tmp = tempfile.mkstemp(dir=directory, suffix=".npz.tmp")
-        try:
-            with os.fdopen(fd, "wb") as handle:
-                np.savez(handle, **data)
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        mapfile.write_map(path, data)
 
     def load_map(self, path: str, restore_pose: bool = True) -> None:
-        """Load a map written by :meth:`save_map`; EM continues from its statistics and counts."""
-        with np.load(os.fspath(path)) as data:
-            if int(data["version"]) != MAP_FORMAT_VERSION:
-                raise ValueError(f"{path}: map format {int(data['version'])}, expected {MAP_FORMAT_VERSION}")
-            loaded = {name: np.array(data[name.lstrip("_")]) for name in self._MAP_FIELDS}
-            pose = np.array(data["pose"])
-        m = loaded["_theta"].shape[0]
-        if not np.all(np.isfinite(loaded["_theta"])):
-            raise ValueError(f"{path}: map holds non-finite landmark positions")
-        stamp = self._time
-        self.reset(pose if restore_pose else None, stamp)
-        for name, value in loaded.items():
-            setattr(self, name, value)
-        n = self._particles.shape[0]
-        self._created = np.zeros(m, dtype=np.int64)
-        self._block_count = np.zeros(m, dtype=np.int64)
-        # Particle-level statistics are not saved: every particle restarts from the
-        # smoothed statistic, which is what the M-step used.
-        if self.config.em.algorithm == "online":
-            self._tau = np.broadcast_to(self._stats, (n, m, STAT_DIM)).copy()
-        else:
-            self._tau = np.zeros((n, m, STAT_DIM))
-        self._differing = np.zeros(m, dtype=bool)
+        """Load a map written by :meth:`save_map`; EM continues from its statistics and counts.
+
+        The file is validated completely before the state is touched; on any error
+        (MapFileError, a ValueError naming the file) the estimate is left unchanged.
+        """
+        from . import mapfile  # noqa: PLC0415
+        loaded = mapfile.read_map(path, max_landmarks=self.config.association.max_landmarks)
+        m = loaded["theta"].shape[0]
+        pose = loaded["pose"].copy()
+        pose[2] = wrap_angle(pose[2])
+        # reset() rebinds attributes rather than mutating arrays, so a shallow copy of
+        # the instance dict is a complete snapshot to fall back to.
+        snapshot = dict(self.__dict__)
+        try:
+            self.reset(pose if restore_pose else None, self._time)
+            for name in self._MAP_FIELDS:
+                setattr(self, name, loaded[name.lstrip("_")])
+            n = self._particles.shape[0]
+            self._created = np.zeros(m, dtype=np.int64)
+            self._block_count = np.zeros(m, dtype=np.int64)
+            # Particle-level statistics are not saved: every particle restarts from the
+            # smoothed statistic, which is what the M-step used.
+            if self.config.em.algorithm == "online":
+                self._tau = np.broadcast_to(self._stats, (n, m, STAT_DIM)).copy()
+            else:
+                self._tau = np.zeros((n, m, STAT_DIM))
+            self._differing = np.zeros(m, dtype=bool)
+        except BaseException:
+            self.__dict__.clear()
+            self.__dict__.update(snapshot)
+            raise
