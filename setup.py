@@ -28,6 +28,7 @@ setup(
         (share, ["package.xml"]),
         (os.path.join(share, "launch"), glob("launch/*.py")),
         (os.path.join(share, "config"), glob("config/*.yaml")),
+        (os.path.join(share, "rviz"), glob("rviz/*.rviz")),
     ] + tree(os.path.join("data", "kth"), share),
     install_requires=["setuptools", "numpy", "scipy"],
     zip_safe=True,
@@ -44,6 +45,8 @@ setup(
             "online-em-slam-replay = online_em_slam.replay:main",
             "beacon_extractor_node = online_em_slam.kth.beacon_node:main",
             "online-em-slam-benchmark = online_em_slam.benchmark:main",
+            "online-em-slam-record = online_em_slam.record:main",
+            "online-em-slam-topic = online_em_slam.topic_tool:main",
         ],
     },
 )
