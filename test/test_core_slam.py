@@ -160,7 +160,7 @@ def test_a_new_pass_starts_from_the_map_with_fresh_statistics():
     restarted = slam.landmarks()
     np.testing.assert_array_equal(restarted.positions, first.positions)
     np.testing.assert_array_equal(restarted.ids, first.ids)
-    assert slam.step_count == 0 and not slam._count.any()
+    assert slam.step_count == 0 and not slam._m_step.count.any()
     for step in scenario.steps:
         feed(slam, step)
     second = slam.landmarks()

@@ -193,7 +193,7 @@ def _through_lever(P: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 
 def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.ndarray,
-                       controls: np.ndarray, dts: np.ndarray):
+                       controls: np.ndarray, dts: np.ndarray, with_jacobian: bool = False):
     """Apply K consecutive control segments to every pose in one vectorised pass.
 
     Equivalent to K calls of :func:`propagate` with mean <- f(mean, u_k) and
@@ -201,12 +201,14 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
     the yaw increment does not depend on the pose, so every heading along the
     way is known up front, and the Jacobians are I + s_k e_yaw^T, so
     P_K = A_0 P_0 A_0^T + sum_k A_k Q_k A_k^T with A_k = I + (sum_{j>k} s_j) e_yaw^T.
+    With ``with_jacobian`` the compounded Jacobian A_0 (N, 3, 3) is returned too.
     """
     controls = np.asarray(controls, dtype=float)
     dts = np.asarray(dts, dtype=float)
     k, n = dts.shape[0], poses.shape[0]
     if k == 0:
-        return poses, covariances
+        identity = np.broadcast_to(np.eye(3), covariances.shape).copy()
+        return (poses, covariances, identity) if with_jacobian else (poses, covariances)
     model = MODELS[config.model]
     yaw_steps = model(config, np.zeros((k, 3)), controls, dts)[0][:, 2]
     yaw_before = np.concatenate([[0.0], np.cumsum(yaw_steps)[:-1]])
@@ -221,7 +223,11 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
     s = F[:, :2, 2].reshape(k, n, 2)
     from_k = np.cumsum(s[::-1], axis=0)[::-1]           # sum_{j >= k} s_j
     cov = _through_lever(covariances, from_k[0]) + _through_lever(Q.reshape(k, n, 3, 3), from_k - s).sum(axis=0)
-    return new, cov
+    if not with_jacobian:
+        return new, cov
+    jacobian = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    jacobian[:, :2, 2] = from_k[0]
+    return new, cov, jacobian
 
 
 def step_jitter(config: MotionConfig) -> np.ndarray:

@@ -1,19 +1,20 @@
-"""Particle online EM SLAM: the public estimator (ALGORITHM.md sections 2-4).
+"""Particle online EM SLAM: the public estimator (ALGORITHM.md sections 2-4, 6).
 
 The pose is the hidden state of an HMM and is tracked by a particle filter;
-the landmark map theta is a parameter, updated by the M-step from smoothed
-sufficient statistics.  One *filter step* happens per observation scan (and,
-without observations, every ``motion.max_prediction_interval`` seconds); the
-controls or odometry increments in between are compounded into the Gaussian
-transition (T) of ``motion.py``, so the O(N^2) smoother runs once per scan,
-not once per 40 Hz control message.
+the landmark map theta is a parameter, updated by an M-step piece
+(em_complete.py: the seed's complete-data M-step; em_observed.py: the Newton
+step with the observed information).  One *filter step* happens per
+observation scan (and, without observations, every
+``motion.max_prediction_interval`` seconds); the controls or odometry
+increments in between are compounded into the Gaussian transition (T) of
+``motion.py``, so the O(N^2) smoother runs once per scan, not once per 40 Hz
+control message.
 """
 from __future__ import annotations
 
-import os
-import tempfile
 import time
 from collections import Counter
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -21,17 +22,47 @@ from . import motion as motion_models
 from .angles import wrap_angle
 from .association import AMBIGUOUS, NEW_LANDMARK, Gates, associate
 from .config import SlamConfig
-from .observation import (innovation, inv_det_2x2, inverse_observation, landmark_jacobian,
-                          noise_covariance, noise_loglik, component_precision_weight,
-                          predict_observation, sensor_poses)
+from .em_complete import CompleteDataEM
+from .em_observed import ObservedInformationEM
+from .em_step import FilterStepData, MStep
+from .landmarks import LandmarkTable
+from .observation import (component_precision_weight, innovation, inv_det_2x2, inverse_observation,
+                          landmark_jacobian, noise_covariance, noise_loglik, predict_observation,
+                          sensor_poses)
 from .particles import (effective_sample_size, normalize_log_weights, sample_gaussians,
                         systematic_resample, weighted_outer, weighted_pose_covariance,
                         weighted_pose_mean, weighted_sum)
-from .statistics import (STAT_DIM, backward_kernel, differing_landmarks, forward_smooth, information_covariance,
-                         m_step, observation_statistics, paris_indices, paris_smooth)
 from .types import LandmarkMap, Observations, PoseEstimate, StepReport
 
 MAP_FORMAT_VERSION = 1
+
+
+@dataclass
+class ObservationTerms:
+    """Per-scan observation terms under theta_{t-1}, N particles, P associated observations.
+
+    y (P, 2), R (P, 2, 2), nu (N, P, 2) innovations, H (N, P, 2, 2) = dh/dtheta,
+    precision (N, P, 2, 2) responsibility-weighted R^-1, log_likelihood (N,).
+    """
+
+    y: np.ndarray
+    R: np.ndarray
+    nu: np.ndarray
+    H: np.ndarray
+    precision: np.ndarray
+    log_likelihood: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int) -> "ObservationTerms":
+        return cls(np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros((n, 0, 2)), np.zeros((n, 0, 2, 2)),
+                   np.zeros((n, 0, 2, 2)), np.zeros(n))
+
+
+def make_m_step(config: SlamConfig, initial_pose: np.ndarray, rng: np.random.Generator) -> MStep:
+    """The M-step piece selected by ``em.m_step``."""
+    if config.em.m_step == "observed":
+        return ObservedInformationEM(config, initial_pose)
+    return CompleteDataEM(config, config.filter.num_particles, rng)
 
 
 class OnlineEMSlam:
@@ -67,6 +98,7 @@ class OnlineEMSlam:
         self._log_w = np.full(n, -np.log(n))
         self._pred_mean = self._particles.copy()
         self._pred_cov = np.zeros((n, 3, 3))
+        self._reset_track(pose)
         self._pending_controls: list[np.ndarray] = []
         self._pending_dts: list[float] = []
         self._resample_pending = False
@@ -76,24 +108,8 @@ class OnlineEMSlam:
         self._last_odom: np.ndarray | None = None
         self._step = 0
         self._ess = float(n)
-        # Landmark parameter theta and its bookkeeping, one row per landmark.
-        self._theta = np.zeros((0, 2))
-        self._ids = np.zeros(0, dtype=np.int64)
-        self._count = np.zeros(0, dtype=np.int64)      # EM updates n_k (step sizes)
-        self._inv_n = np.zeros(0)                      # sum of squared SA weights (covariance)
-        self._n_obs = np.zeros(0, dtype=np.int64)
-        self._created = np.zeros(0, dtype=np.int64)
-        self._confirmed = np.zeros(0, dtype=bool)
-        self._stats = np.zeros((0, STAT_DIM))          # smoothed statistic S_k of the last M-step
-        self._spread = np.zeros((0, 2, 2))             # pose-induced landmark covariance (SA average)
-        self._tau = np.zeros((n, 0, STAT_DIM))         # per-particle auxiliary statistics
-        self._differing = np.zeros(0, dtype=bool)      # tau may still differ across particles
-        # Block Online EM state.
-        self._block_index = 1
-        self._block_end = cfg.em.block_initial_length
-        self._block_count = np.zeros(0, dtype=np.int64)
-        self._avg_stats = np.zeros((0, STAT_DIM))
-        self._avg_count = np.zeros(0, dtype=np.int64)
+        self._map = LandmarkTable()
+        self._m_step: MStep = make_m_step(cfg, pose, self._rng)
 
     def start_new_pass(self, initial_pose=None, stamp: float | None = None) -> None:
         """Prepare another pass over the same data: batch EM by repeated passes.
@@ -105,14 +121,13 @@ class OnlineEMSlam:
         for offline diagnostics (how far EM is from its fixed point); the
         online use is a single pass.
         """
-        # The last statistics and spreads stay until each landmark's first update of the
+        # The complete-data statistics stay until each landmark's first update of the
         # new pass replaces them (step size 1): they give the map uncertainty meanwhile.
-        kept = {name: getattr(self, name).copy()
-                for name in ("_theta", "_ids", "_n_obs", "_confirmed", "_stats", "_spread", "_inv_n")}
+        saved = self._m_step_arrays()
+        for name in ("count", "avg_stats", "avg_count"):
+            saved[name] = np.zeros_like(saved[name])
         self.reset(initial_pose, stamp)
-        self._add_landmarks(kept.pop("_theta"), kept.pop("_ids"))
-        for name, value in kept.items():
-            setattr(self, name, value)
+        self._restore_map(saved)
 
     @property
     def last_stamp(self) -> float | None:
@@ -153,12 +168,23 @@ class OnlineEMSlam:
         """
         if not self._pending_dts:
             return
+        controls, dts = np.array(self._pending_controls), np.array(self._pending_dts)
         self._pred_mean, self._pred_cov = motion_models.integrate_segments(
-            self.config.motion, self._pred_mean, self._pred_cov,
-            np.array(self._pending_controls), np.array(self._pending_dts))
+            self.config.motion, self._pred_mean, self._pred_cov, controls, dts)
         self._pred_mean[:, 2] = wrap_angle(self._pred_mean[:, 2])
+        if self.config.em.m_step == "observed":
+            self._advance_track(controls, dts)
         self._pending_controls.clear()
         self._pending_dts.clear()
+
+    def _advance_track(self, controls: np.ndarray, dts: np.ndarray) -> None:
+        """Carry the mean pose's own transition f, F, Q along with the particles'."""
+        mean, cov, F = motion_models.integrate_segments(
+            self.config.motion, self._track_pose[None], self._track_cov[None], controls, dts, with_jacobian=True)
+        self._track_pose = mean[0]
+        self._track_pose[2] = wrap_angle(self._track_pose[2])
+        self._track_cov = cov[0]
+        self._track_jacobian = F[0] @ self._track_jacobian
 
     def _advance_to(self, stamp: float) -> None:
         """Integrate the held control up to ``stamp`` (zero-order hold)."""
@@ -231,225 +257,123 @@ class OnlineEMSlam:
 
     # ------------------------------------------------------------------ map rows
     def _add_landmarks(self, positions: np.ndarray, ids: np.ndarray) -> np.ndarray:
-        """Append landmarks; returns their row indices."""
-        k = positions.shape[0]
-        n = self._tau.shape[0]
-        start = self._theta.shape[0]
-        self._theta = np.vstack([self._theta, positions])
-        self._ids = np.concatenate([self._ids, ids.astype(np.int64)])
-        self._count = np.concatenate([self._count, np.zeros(k, dtype=np.int64)])
-        self._inv_n = np.concatenate([self._inv_n, np.ones(k)])
-        self._n_obs = np.concatenate([self._n_obs, np.zeros(k, dtype=np.int64)])
-        self._created = np.concatenate([self._created, np.full(k, self._step, dtype=np.int64)])
-        self._confirmed = np.concatenate([self._confirmed, np.zeros(k, dtype=bool)])
-        self._stats = np.vstack([self._stats, np.zeros((k, STAT_DIM))])
-        self._spread = np.concatenate([self._spread, np.zeros((k, 2, 2))])
-        self._tau = np.concatenate([self._tau, np.zeros((n, k, STAT_DIM))], axis=1)
-        self._differing = np.concatenate([self._differing, np.zeros(k, dtype=bool)])
-        self._block_count = np.concatenate([self._block_count, np.zeros(k, dtype=np.int64)])
-        self._avg_stats = np.vstack([self._avg_stats, np.zeros((k, STAT_DIM))])
-        self._avg_count = np.concatenate([self._avg_count, np.zeros(k, dtype=np.int64)])
-        return np.arange(start, start + k)
+        """Append landmarks to the table and to the M-step's per-landmark state; their rows."""
+        rows = self._map.add(positions, ids, self._step)
+        self._m_step.add_landmarks(rows.size)
+        return rows
 
     def _keep_landmarks(self, keep: np.ndarray) -> None:
-        for name in ("_theta", "_ids", "_count", "_inv_n", "_n_obs", "_created", "_confirmed",
-                     "_stats", "_spread", "_block_count", "_avg_stats", "_avg_count"):
-            setattr(self, name, getattr(self, name)[keep])
-        self._tau = self._tau[:, keep]
-        self._differing = self._differing[keep]
-
-    def _next_ids(self, k: int, pending: list[int]) -> list[int]:
-        """Ids for landmarks created from unknown-id observations: above every id in use."""
-        start = max([int(self._ids.max()) if self._ids.size else -1] + pending) + 1
-        return list(range(start, start + k))
-
-    def _landmark_covariances(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
-        """Map uncertainty: measurement part q A^-1 plus the spread of the
-        per-particle solutions A_i^-1 b_i, which carries the pose uncertainty
-        under which the landmark was observed, blended with the same step sizes."""
-        return information_covariance(self._stats[rows], self._inv_n[rows]) + self._spread[rows]
+        self._map.keep(keep)
+        self._m_step.keep_landmarks(keep)
 
     # ------------------------------------------------------------------ filter step
     def _filter_step(self, obs: Observations | None, report: StepReport | None = None) -> None:
-        cfg = self.config
+        """One particle-filter step and EM update (ALGORITHM.md sections 2-3, 6)."""
         report = report if report is not None else StepReport()
         self._flush_motion()
-        n = self._particles.shape[0]
-        # 1. Ancestors (resampling decided on the last ESS) and proposal draws from (T).
-        log_w_prev = self._log_w
-        if self._resample_pending:
-            ancestors = systematic_resample(np.exp(log_w_prev), self._rng)
-            log_prior = np.full(n, -np.log(n))
-        else:
-            ancestors = np.arange(n)
-            log_prior = log_w_prev
-        trans_cov = self._pred_cov + motion_models.step_jitter(cfg.motion)
+        ancestors, log_prior = self._select_ancestors()
+        trans_cov = self._pred_cov + motion_models.step_jitter(self.config.motion)
         particles = sample_gaussians(self._pred_mean[ancestors], trans_cov[ancestors], self._rng)
-        log_w = log_prior.copy()
+        sensor = sensor_poses(particles, self.config.sensor)
+        prior_weights, _ = normalize_log_weights(log_prior)
+        rows, obs_idx = self._associate_scan(obs, sensor, prior_weights, report)
+        terms = self._observation_terms(obs, obs_idx, rows, sensor)
+        log_w = log_prior + terms.log_likelihood
+        weights = self._normalise(log_w)
+        data = self._step_data(particles, weights, prior_weights, ancestors, trans_cov, rows, terms, sensor)
+        pose_correction = self._m_step.update(data, self._map)
+        self._commit(particles, weights, pose_correction)
+        report.n_associated = int(rows.size)
+        report.n_pruned = self._prune_tentative()
 
-        # 2. Association and observation likelihood under theta_{t-1}.
-        pairs_obs, pairs_lm = np.zeros(0, dtype=int), np.zeros(0, dtype=int)
-        sensor = sensor_poses(particles, cfg.sensor)
-        if obs is not None and len(obs):
-            pairs_obs, pairs_lm = self._associate(obs, sensor, np.exp(log_prior - log_prior.max()), report)
-        stats_new = spread_new = None
-        if pairs_obs.size:
-            y = np.stack([obs.ranges[pairs_obs], obs.bearings[pairs_obs]], axis=-1)        # (P, 2)
-            R = noise_covariance(cfg.noise, obs.ranges[pairs_obs],
-                                 None if obs.range_std is None else obs.range_std[pairs_obs],
-                                 None if obs.bearing_std is None else obs.bearing_std[pairs_obs])
-            theta_bar = self._theta[pairs_lm]                                             # (P, 2)
-            predicted = predict_observation(sensor[:, None, :], theta_bar[None, :, :])    # (N, P, 2)
-            nu = innovation(np.broadcast_to(y, predicted.shape).copy(), predicted)
-            H = landmark_jacobian(sensor[:, None, :], theta_bar[None, :, :])              # (N, P, 2, 2)
-            weighting = self._n_obs[pairs_lm] >= cfg.association.min_observations_for_weighting
-            if weighting.any():
-                S = np.broadcast_to(R, H.shape).copy()
-                if cfg.em.inflate_with_map_uncertainty:
-                    cov = self._landmark_covariances(pairs_lm)
-                    S += H @ cov[None] @ np.swapaxes(H, -1, -2)
-                loglik, _ = noise_loglik(cfg.noise, nu, S)
-                log_w = log_w + np.where(weighting[None, :], loglik, 0.0).sum(axis=1)
-            _, resp = noise_loglik(cfg.noise, nu, np.broadcast_to(R, H.shape))
-            R_inv, _ = inv_det_2x2(R)
-            precision = R_inv[None] * component_precision_weight(cfg.noise, resp)[..., None, None]
-            stats_new = observation_statistics(H, precision, nu, theta_bar[None])          # (N, P, 5)
-            spread_new = self._inverse_observation_spread(sensor, y, weights_prior=np.exp(log_prior - log_prior.max()))
-            self._n_obs[pairs_lm] += 1
-            report.n_associated = int(pairs_obs.size)
+    def _select_ancestors(self) -> tuple[np.ndarray, np.ndarray]:
+        """Ancestor indices and prior log-weights; resampling was decided on the last ESS."""
+        n = self._particles.shape[0]
+        if self._resample_pending:
+            return systematic_resample(np.exp(self._log_w), self._rng), np.full(n, -np.log(n))
+        return np.arange(n), self._log_w
 
+    def _associate_scan(self, obs, sensor, prior_weights, report) -> tuple[np.ndarray, np.ndarray]:
+        """(landmark rows, observation indices) of the scan's associated observations."""
+        if obs is None or not len(obs):
+            return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
+        obs_idx, rows = self._associate(obs, sensor, prior_weights, report)
+        return rows, obs_idx
+
+    def _observation_terms(self, obs, obs_idx, rows, sensor) -> "ObservationTerms":
+        """Innovations, Jacobians, likelihood and responsibilities under theta_{t-1}."""
+        cfg = self.config
+        n = sensor.shape[0]
+        if not rows.size:
+            return ObservationTerms.empty(n)
+        y = np.stack([obs.ranges[obs_idx], obs.bearings[obs_idx]], axis=-1)            # (P, 2)
+        R = noise_covariance(cfg.noise, obs.ranges[obs_idx],
+                             None if obs.range_std is None else obs.range_std[obs_idx],
+                             None if obs.bearing_std is None else obs.bearing_std[obs_idx])
+        theta_bar = self._map.theta[rows]                                               # (P, 2)
+        nu = innovation(np.broadcast_to(y, (n,) + y.shape).copy(),
+                        predict_observation(sensor[:, None, :], theta_bar[None]))        # (N, P, 2)
+        H = landmark_jacobian(sensor[:, None, :], theta_bar[None])                      # (N, P, 2, 2)
+        log_likelihood = self._weighting_loglik(rows, nu, H, R)
+        _, resp = noise_loglik(cfg.noise, nu, np.broadcast_to(R, H.shape))
+        R_inv, _ = inv_det_2x2(R)
+        precision = R_inv[None] * component_precision_weight(cfg.noise, resp)[..., None, None]
+        self._map.n_obs[rows] += 1
+        return ObservationTerms(y, R, nu, H, precision, log_likelihood)
+
+    def _weighting_loglik(self, rows, nu, H, R) -> np.ndarray:
+        """log g(y | xi^i, theta) summed over the landmarks seen often enough to weight (N,).
+
+        With ``inflate_with_map_uncertainty`` the innovation covariance also carries
+        the landmark's uncertainty, H Sigma_k H^T.
+        """
+        cfg = self.config
+        weighting = self._map.n_obs[rows] >= cfg.association.min_observations_for_weighting
+        if not weighting.any():
+            return np.zeros(nu.shape[0])
+        S = np.broadcast_to(R, H.shape).copy()
+        if cfg.em.inflate_with_map_uncertainty:
+            cov = self._m_step.covariances(rows)
+            S += H @ cov[None] @ np.swapaxes(H, -1, -2)
+        loglik, _ = noise_loglik(cfg.noise, nu, S)
+        return np.where(weighting[None, :], loglik, 0.0).sum(axis=1)
+
+    def _normalise(self, log_w: np.ndarray) -> np.ndarray:
         weights, _ = normalize_log_weights(log_w)
         if not np.all(np.isfinite(log_w)):
             self.drops["degenerate_weights"] += 1
+        return weights
 
-        # 3. Smoothing of the auxiliary statistics (forward-only / PaRIS / ancestry).
-        if self._tau.shape[1]:
-            self._tau = self._smooth(self._tau, log_w_prev, trans_cov, particles, ancestors)
+    def _step_data(self, particles, weights, prior_weights, ancestors, trans_cov, rows, terms,
+                   sensor) -> FilterStepData:
+        return FilterStepData(
+            step=self._step, particles=particles, weights=weights, log_weights_prev=self._log_w,
+            prior_weights=prior_weights, ancestors=ancestors, transition_means=self._pred_mean,
+            transition_covs=trans_cov, rows=rows, y=terms.y, R=terms.R, sensor=sensor, nu=terms.nu,
+            H=terms.H, precision=terms.precision, motion_mean=self._track_pose,
+            motion_jacobian=self._track_jacobian,
+            motion_cov=self._track_cov + motion_models.step_jitter(self.config.motion))
 
-        # 4. EM: blend (online) or accumulate (block) the new statistics, then the M-step.
-        if cfg.em.algorithm == "online":
-            self._online_em_update(pairs_lm, stats_new, spread_new, weights)
-        else:
-            self._block_em_update(pairs_lm, stats_new, spread_new, weights)
-
-        # 5. New anchors for the next transition.
+    def _commit(self, particles, weights, pose_correction) -> None:
+        """New anchors for the next transition, moved by the M-step's pose correction."""
+        if pose_correction is not None:
+            particles = particles + pose_correction
+            particles[:, 2] = wrap_angle(particles[:, 2])
         self._particles = particles
         self._log_w = np.log(np.maximum(weights, 1e-300))
         self._pred_mean = particles.copy()
         self._pred_cov = np.zeros_like(self._pred_cov)
+        self._reset_track(weighted_pose_mean(particles, weights))
         self._ess = effective_sample_size(weights)
-        self._resample_pending = self._ess < cfg.filter.resample_threshold * n
+        self._resample_pending = self._ess < self.config.filter.resample_threshold * particles.shape[0]
         self._anchor_time = self._time
         self._step += 1
-        report.n_pruned = self._prune_tentative()
 
-    def _inverse_observation_spread(self, sensor: np.ndarray, y: np.ndarray, weights_prior: np.ndarray) -> np.ndarray:
-        """Weighted covariance over particles of inverse_observation(sensor_i, y): (P, 2, 2).
-
-        It is how far the landmark position implied by one observation moves
-        with the pose uncertainty at that time; pose errors are correlated over
-        a pass, so it is averaged, not divided by the number of observations.
-        """
-        w = weights_prior / weights_prior.sum()
-        points = inverse_observation(sensor[:, None, :], y[None])                         # (N, P, 2)
-        dev = points - weighted_sum(w, points)[None]
-        return weighted_outer(w, dev)
-
-    def _smooth(self, tau_prev, log_w_prev, trans_cov, particles, ancestors) -> np.ndarray:
-        smoother = self.config.filter.smoother
-        # Both kernels average the previous statistics (rows sum to one), so a
-        # landmark whose statistic is already the same in every particle keeps
-        # it: only the landmarks that still differ across particles are smoothed.
-        # In a large map most landmarks are out of sight and collapsed; the flag
-        # spares the O(N M) test on them, and is raised again by an observation.
-        candidates = np.flatnonzero(self._differing)
-        if candidates.size:
-            self._differing[candidates] = differing_landmarks(tau_prev[:, candidates])
-        if smoother == "ancestry":
-            return tau_prev[ancestors]
-        active = np.flatnonzero(self._differing)
-        if not active.size:
-            return tau_prev
-        if smoother == "paris":
-            idx = paris_indices(log_w_prev, self._pred_mean, trans_cov, particles,
-                                self.config.filter.paris_draws, self._rng)
-            tau_prev[:, active] = paris_smooth(tau_prev[:, active], idx)
-        else:
-            kernel = backward_kernel(log_w_prev, self._pred_mean, trans_cov, particles)
-            tau_prev[:, active] = forward_smooth(tau_prev[:, active], kernel)
-        return tau_prev
-
-    def _online_em_update(self, rows: np.ndarray, stats_new, spread_new, weights: np.ndarray) -> None:
-        """tau <- (1 - gamma_n) tau + gamma_n s for the observed landmarks, gamma_n = n^-alpha."""
-        em = self.config.em
-        if rows.size:
-            self._count[rows] += 1
-            gamma = self._count[rows].astype(float) ** (-em.step_size_exponent)
-            self._tau[:, rows] = (1.0 - gamma)[None, :, None] * self._tau[:, rows] + gamma[None, :, None] * stats_new
-            self._spread[rows] = (1.0 - gamma)[:, None, None] * self._spread[rows] + gamma[:, None, None] * spread_new
-            self._inv_n[rows] = (1.0 - gamma) ** 2 * self._inv_n[rows] + gamma ** 2
-            self._differing[rows] = True
-        # A statistic equal in every particle has the same weighted mean whatever
-        # the weights: its M-step would return the current theta.
-        changed = np.flatnonzero(self._differing)
-        if changed.size:
-            stats = weighted_sum(weights, self._tau[:, changed])
-            self._apply_m_step(stats, self._count[changed] >= em.min_updates_before_mstep, changed)
-
-    def _block_em_update(self, rows: np.ndarray, stats_new, spread_new, weights: np.ndarray) -> None:
-        """Block Online EM: theta fixed within a block, statistics summed, M-step at block end."""
-        em = self.config.em
-        if rows.size:
-            # Running mean of the pose-induced spread over all observations.
-            share = 1.0 / (self._count[rows] + self._block_count[rows] + 1.0)
-            self._spread[rows] += share[:, None, None] * (spread_new - self._spread[rows])
-            self._tau[:, rows] += stats_new
-            self._block_count[rows] += 1
-            self._differing[rows] = True
-            fresh = rows[self._count[rows] == 0]
-            if fresh.size:
-                # A landmark first seen inside a block has no block estimate yet: until
-                # its first block ends it is estimated from the running block mean, so
-                # the filter does not localise against a single-observation guess.
-                stats = weighted_sum(weights, self._tau[:, fresh]) / self._block_count[fresh, None]
-                theta, ok = m_step(stats)
-                self._theta[fresh[ok]] = theta[ok]
-                self._stats[fresh] = stats
-                self._inv_n[fresh] = 1.0 / self._block_count[fresh]
-        if self._step + 1 < self._block_end:
-            return
-        seen = self._block_count > 0
-        if seen.any():
-            block_sum = weighted_sum(weights, self._tau[:, seen])
-            counts = self._block_count[seen]
-            if em.algorithm == "block_averaged":
-                self._avg_stats[seen] += block_sum
-                self._avg_count[seen] += counts
-                total, total_count = self._avg_stats[seen], self._avg_count[seen]
-            else:
-                total, total_count = block_sum, counts
-            stats = np.zeros_like(self._stats)
-            stats[seen] = total / total_count[:, None]
-            self._count[seen] += counts
-            inv_n = self._inv_n.copy()
-            inv_n[seen] = 1.0 / total_count
-            self._inv_n = inv_n
-            self._apply_m_step(stats, seen & (self._count >= em.min_updates_before_mstep))
-        # Restart smoothing for the next block.
-        self._tau[:] = 0.0
-        self._differing[:] = False
-        self._block_count[:] = 0
-        self._block_index += 1
-        length = int(np.ceil(em.block_initial_length * self._block_index ** em.block_growth))
-        self._block_end = self._step + 1 + length
-
-    def _apply_m_step(self, stats: np.ndarray, eligible: np.ndarray, rows: np.ndarray | slice = slice(None)) -> None:
-        """theta = A^-1 b for the landmarks ``rows`` whose statistics are ``stats``."""
-        theta, ok = m_step(stats)
-        update = eligible & ok
-        target = np.arange(self._theta.shape[0])[rows][update]
-        self._theta[target] = theta[update]
-        self._stats[target] = stats[update]
+    def _reset_track(self, pose: np.ndarray) -> None:
+        """The weighted mean pose and its own transition: the observed M-step's linearisation track."""
+        self._track_pose = pose.copy()
+        self._track_jacobian = np.eye(3)
+        self._track_cov = np.zeros((3, 3))
 
     # ------------------------------------------------------------------ association
     def _associate(self, obs: Observations, sensor: np.ndarray, prior_weights: np.ndarray,
@@ -473,7 +397,7 @@ class OnlineEMSlam:
                 report.dropped["duplicate_id"] = report.dropped.get("duplicate_id", 0) + dup
                 self.drops["duplicate_id"] += dup
             idx, ids = idx[np.sort(first)], ids[np.sort(first)]
-            rows = self._rows_of_ids(ids)
+            rows = self._map.rows_of_ids(ids)
             pair_o.append(idx[rows >= 0])
             pair_l.append(rows[rows >= 0])
             for o, i in zip(idx[rows < 0], ids[rows < 0]):
@@ -502,9 +426,9 @@ class OnlineEMSlam:
                 positions, new = self._dedupe_new(positions, new)
                 created_obs.extend(int(o) for o in new)
                 created_pos.extend(positions)
-                created_ids.extend(self._next_ids(len(new), created_ids))
+                created_ids.extend(self._map.next_ids(len(new), created_ids))
         if created_obs:
-            room = cfg.association.max_landmarks - self._theta.shape[0]
+            room = cfg.association.max_landmarks - len(self._map)
             if room < len(created_obs):
                 lost = len(created_obs) - max(room, 0)
                 self.drops["map_full"] += lost
@@ -519,15 +443,6 @@ class OnlineEMSlam:
         if not pair_o:
             return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
         return np.concatenate(pair_o).astype(int), np.concatenate(pair_l).astype(int)
-
-    def _rows_of_ids(self, ids: np.ndarray) -> np.ndarray:
-        """Map row of each landmark id, -1 where the id is not in the map."""
-        if not self._ids.size:
-            return np.full(ids.shape, -1, dtype=int)
-        order = np.argsort(self._ids, kind="stable")
-        sorted_ids = self._ids[order]
-        pos = np.minimum(np.searchsorted(sorted_ids, ids), sorted_ids.size - 1)
-        return np.where(sorted_ids[pos] == ids, order[pos], -1).astype(int)
 
     def _dedupe_new(self, positions: np.ndarray, obs_idx: np.ndarray):
         """Two unexplained observations of one scan closer than the range noise make one landmark."""
@@ -545,10 +460,11 @@ class OnlineEMSlam:
         return positions[keep], obs_idx[keep]
 
     def _candidate_rows(self, mean_sensor: np.ndarray) -> np.ndarray:
-        if not self._theta.shape[0]:
+        theta = self._map.theta
+        if not theta.shape[0]:
             return np.zeros(0, dtype=int)
         reach = self.config.sensor.max_range + 5.0 * self.config.noise.sigma_range + 5.0
-        dist = np.hypot(self._theta[:, 0] - mean_sensor[0], self._theta[:, 1] - mean_sensor[1])
+        dist = np.hypot(theta[:, 0] - mean_sensor[0], theta[:, 1] - mean_sensor[1])
         return np.flatnonzero(dist < reach)
 
     def _predicted_measurements(self, sensor, w, rows, obs: Observations, unknown):
@@ -558,7 +474,7 @@ class OnlineEMSlam:
         pose and map uncertainty both widen the gate (dh/dp = -dh/dtheta, so a
         position margin enters like map uncertainty).
         """
-        theta = self._theta[rows]
+        theta = self._map.theta[rows]
         h = predict_observation(sensor[:, None, :], theta[None])                         # (N, K, 2)
         mean = weighted_sum(w, h)
         mean[:, 1] = np.arctan2(w @ np.sin(h[..., 1]), w @ np.cos(h[..., 1]))
@@ -567,7 +483,7 @@ class OnlineEMSlam:
         spread = weighted_outer(w, dev)
         H = landmark_jacobian(weighted_pose_mean(sensor, w)[None], theta)                # (K, 2, 2)
         assoc = self.config.association
-        map_cov = self._landmark_covariances(rows) + assoc.gate_position_std ** 2 * np.eye(2)
+        map_cov = self._m_step.covariances(rows) + assoc.gate_position_std ** 2 * np.eye(2)
         spread = spread + H @ map_cov @ np.swapaxes(H, -1, -2)
         spread[:, 1, 1] += assoc.gate_heading_std ** 2
         R = noise_covariance(self.config.noise, obs.ranges[unknown],
@@ -577,12 +493,10 @@ class OnlineEMSlam:
 
     def _prune_tentative(self) -> int:
         assoc = self.config.association
-        self._confirmed |= self._n_obs >= assoc.confirm_observations
-        stale = ~self._confirmed & (self._step - self._created > assoc.tentative_timeout)
+        stale = self._map.stale(self._step, assoc.confirm_observations, assoc.tentative_timeout)
         if stale.any():
             self._keep_landmarks(~stale)
-            return int(stale.sum())
-        return 0
+        return int(stale.sum())
 
     # ------------------------------------------------------------------ outputs
     def pose(self) -> PoseEstimate:
@@ -601,16 +515,33 @@ class OnlineEMSlam:
         return self._pred_mean.copy(), w / w.sum()
 
     def landmarks(self, confirmed_only: bool = False) -> LandmarkMap:
-        """Current map estimate theta with covariances q A^-1 and observation counts."""
-        keep = self._confirmed if confirmed_only else np.ones(self._ids.shape[0], dtype=bool)
-        cov = self._landmark_covariances()
+        """Current map estimate theta with covariances and observation counts."""
+        table = self._map
+        keep = table.confirmed if confirmed_only else np.ones(len(table), dtype=bool)
+        cov = self._m_step.map_covariances()
         cov = np.where(np.isfinite(cov), cov, 0.0)
-        return LandmarkMap(self._ids[keep].copy(), self._theta[keep].copy(), cov[keep],
-                           self._n_obs[keep].copy(), self._confirmed[keep].copy())
+        return LandmarkMap(table.ids[keep].copy(), table.theta[keep].copy(), cov[keep],
+                           table.n_obs[keep].copy(), table.confirmed[keep].copy())
 
     # ------------------------------------------------------------------ persistence
-    _MAP_FIELDS = ("_theta", "_ids", "_count", "_inv_n", "_n_obs", "_confirmed", "_stats",
-                   "_spread", "_avg_stats", "_avg_count")
+    def _m_step_arrays(self) -> dict[str, np.ndarray]:
+        """What the map file holds: the landmark table and the M-step's per-landmark state."""
+        table = self._map
+        arrays = {"theta": table.theta, "ids": table.ids, "n_obs": table.n_obs, "confirmed": table.confirmed}
+        arrays.update(self._m_step.saved_arrays())
+        return {name: np.array(value) for name, value in arrays.items()}
+
+    def _restore_map(self, arrays: dict[str, np.ndarray]) -> None:
+        """Rebuild the landmark table and the M-step state from :meth:`_m_step_arrays` output."""
+        m = arrays["theta"].shape[0]
+        self._map.add(np.array(arrays["theta"]), np.array(arrays["ids"]), 0)
+        self._map.n_obs[:] = arrays["n_obs"]
+        self._map.confirmed[:] = arrays["confirmed"]
+        self._map.created[:] = np.zeros(m, dtype=np.int64)
+        if isinstance(self._m_step, ObservedInformationEM):
+            self._m_step.restore(arrays, self._map.theta)
+        else:
+            self._m_step.restore(arrays)
 
     def save_map(self, path: str) -> None:
         """Write map, statistics, counts and pose atomically (core/mapfile.py).
@@ -619,7 +550,7 @@ class OnlineEMSlam:
         file.  The directory must exist (callers decide where files may be created).
         """
         from . import mapfile  # noqa: PLC0415
-        data = {name.lstrip("_"): getattr(self, name) for name in self._MAP_FIELDS}
+        data = self._m_step_arrays()
         data["pose"] = self.pose().mean
         mapfile.write_map(path, data)
 
@@ -631,7 +562,6 @@ class OnlineEMSlam:
         """
         from . import mapfile  # noqa: PLC0415
         loaded = mapfile.read_map(path, max_landmarks=self.config.association.max_landmarks)
-        m = loaded["theta"].shape[0]
         pose = loaded["pose"].copy()
         pose[2] = wrap_angle(pose[2])
         # reset() rebinds attributes rather than mutating arrays, so a shallow copy of
@@ -639,18 +569,7 @@ class OnlineEMSlam:
         snapshot = dict(self.__dict__)
         try:
             self.reset(pose if restore_pose else None, self._time)
-            for name in self._MAP_FIELDS:
-                setattr(self, name, loaded[name.lstrip("_")])
-            n = self._particles.shape[0]
-            self._created = np.zeros(m, dtype=np.int64)
-            self._block_count = np.zeros(m, dtype=np.int64)
-            # Particle-level statistics are not saved: every particle restarts from the
-            # smoothed statistic, which is what the M-step used.
-            if self.config.em.algorithm == "online":
-                self._tau = np.broadcast_to(self._stats, (n, m, STAT_DIM)).copy()
-            else:
-                self._tau = np.zeros((n, m, STAT_DIM))
-            self._differing = np.zeros(m, dtype=bool)
+            self._restore_map(loaded)
         except BaseException:
             self.__dict__.clear()
             self.__dict__.update(snapshot)

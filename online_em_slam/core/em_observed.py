@@ -1,0 +1,130 @@
+"""The observed-information M-step: a Newton step of the map with the poses integrated out.
+
+ALGORITHM.md section 6, docs/METHOD.md.  The particle filter stays the E-step:
+it supplies the weighted mean pose xbar_t (the linearisation point), the
+association and the mixture responsibilities.  Each filter step adds its
+motion and observation factors to observed_information.ObservedInformation;
+every ``em.segment_length`` steps the segment's poses are integrated out and
+the map is solved (online EM) or, with Block Online EM, solved at block ends
+only, theta staying fixed inside a block.  The solve also gives the correction
+of the current pose under the new map, which the filter applies to its
+particles so that the next factors are linearised where the pose now is.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .config import SlamConfig
+from .em_step import FilterStepData
+from .landmarks import LandmarkTable
+from .observation import inv_det_2x2, landmark_jacobian, sensor_poses
+from .observed_information import ObservedInformation, StepFactors, motion_residual
+from .particles import symmetric_inverse_3x3, weighted_pose_mean
+from .statistics import STAT_DIM, unpack
+
+
+class ObservedInformationEM:
+    """Segments of K filter steps; the map solved from the joint information at segment ends."""
+
+    def __init__(self, config: SlamConfig, initial_pose: np.ndarray) -> None:
+        self.config = config
+        self.system = ObservedInformation(config.sensor, initial_pose, config.filter.initial_pose_std)
+        # Complete-data information per landmark, sum of H^T Pbar H: its inverse is the
+        # landmark's uncertainty relative to the poses it was seen from (the gate's term).
+        self.information = np.zeros((0, 2, 2))
+        self.steps_in_segment = 0
+        self.block_index = 1
+        self.block_end = config.em.block_initial_length
+        self.failed_solves = 0
+
+    def add_landmarks(self, count: int) -> None:
+        self.system.add_landmarks(count)
+        self.information = np.concatenate([self.information, np.zeros((count, 2, 2))])
+
+    def keep_landmarks(self, keep: np.ndarray) -> None:
+        self.system.keep_landmarks(keep)
+        self.information = self.information[keep]
+
+    def update(self, data: FilterStepData, table: LandmarkTable) -> np.ndarray | None:
+        """Add the step's factors; at a segment end integrate its poses out and maybe solve."""
+        self.system.add_step(self._step_factors(data, table))
+        self.steps_in_segment += 1
+        if not self._segment_ends(data.step):
+            return None
+        self.system.close_segment(table.theta)
+        self.steps_in_segment = 0
+        if not self._solve_now(data.step):
+            return None
+        solution = self.system.solve()
+        if solution is None:
+            self.failed_solves += 1
+            return None
+        theta, pose_correction = solution
+        table.theta[:] = theta
+        self.system.move_key(pose_correction)
+        return pose_correction
+
+    def _step_factors(self, data: FilterStepData, table: LandmarkTable) -> StepFactors:
+        """Motion and observation factors at the weighted mean pose xbar_t.
+
+        The observation precision is R^-1 weighted by the particles' mixture
+        responsibilities, averaged under the filtering weights.
+        """
+        pose = weighted_pose_mean(data.particles, data.weights)
+        precision = np.einsum("n,npij->pij", data.weights, data.precision)
+        if data.rows.size:
+            H = landmark_jacobian(sensor_poses(pose, self.config.sensor)[None], table.theta[data.rows])
+            np.add.at(self.information, data.rows, np.swapaxes(H, -1, -2) @ precision @ H)
+        W = symmetric_inverse_3x3(data.motion_cov[None])[0][0]
+        return StepFactors(pose, data.motion_jacobian, motion_residual(data.motion_mean, pose), W,
+                           data.rows.copy(), data.y.copy(), precision)
+
+    def _segment_ends(self, step: int) -> bool:
+        if self.config.em.algorithm != "online" and step + 1 >= self.block_end:
+            return True
+        return self.steps_in_segment >= self.config.em.segment_length
+
+    def _solve_now(self, step: int) -> bool:
+        """Online EM solves at every segment end; Block Online EM only at block ends."""
+        em = self.config.em
+        if em.algorithm == "online":
+            return True
+        if step + 1 < self.block_end:
+            return False
+        self.block_index += 1
+        self.block_end = step + 1 + int(np.ceil(em.block_initial_length * self.block_index ** em.block_growth))
+        return True
+
+    # ------------------------------------------------------------ uncertainty
+    def covariances(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        inverse, det = inv_det_2x2(self.information[rows])
+        return np.where((det > 1e-300)[:, None, None], inverse, 0.0)
+
+    def map_covariances(self) -> np.ndarray:
+        """Marginals of the joint system (they include the frame's uncertainty); the
+        per-landmark term for landmarks that have not reached it yet."""
+        joint = self.system.landmark_covariances()
+        return joint if joint is not None else self.covariances()
+
+    # ------------------------------------------------------------ persistence
+    def saved_arrays(self) -> dict[str, np.ndarray]:
+        """The map's marginal information packed as complete-data statistics (A, A theta)."""
+        m = self.information.shape[0]
+        cov = self.map_covariances()
+        info, det = inv_det_2x2(cov)
+        info = np.where((det > 1e-300)[:, None, None], info, self.information)
+        stats = np.zeros((m, STAT_DIM))
+        stats[:, 0], stats[:, 1], stats[:, 2] = info[:, 0, 0], info[:, 0, 1], info[:, 1, 1]
+        return {"count": np.ones(m, dtype=np.int64), "inv_n": np.ones(m), "stats": stats,
+                "spread": np.zeros((m, 2, 2)), "avg_stats": np.zeros((m, STAT_DIM)),
+                "avg_count": np.zeros(m, dtype=np.int64)}
+
+    def restore(self, arrays: dict[str, np.ndarray], theta: np.ndarray) -> None:
+        """A loaded map enters as a prior N(theta, A^-1) per landmark."""
+        A, _ = unpack(arrays["stats"] / np.maximum(arrays["inv_n"], 1e-300)[:, None])
+        m = theta.shape[0]
+        self.add_landmarks(m)
+        self.information[:] = A
+        lm = 3 + np.arange(2 * m).reshape(m, 2)
+        self.system.info[lm[:, :, None], lm[:, None, :]] += A
+        self.system.vector[3:] += np.einsum("mij,mj->mi", A, theta).ravel()

@@ -1,0 +1,73 @@
+"""What one filter step hands to the EM update, and the interface every M-step variant offers.
+
+The filter step (core/slam.py) computes the particles, their weights and the
+observation terms; an M-step piece turns them into a new map.  Two pieces
+implement :class:`MStep`: the seed's complete-data M-step (em_complete.py) and
+the observed-information Newton step (em_observed.py).  ``em.m_step`` picks one.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from .landmarks import LandmarkTable
+
+
+@dataclass
+class FilterStepData:
+    """One filter step t, N particles, P associated observations.
+
+    particles (N, 3) xi_t; weights (N,) w_t; log_weights_prev (N,) log w_{t-1};
+    prior_weights (N,) normalised weights before the likelihood; ancestors (N,);
+    transition_means (N, 3) and transition_covs (N, 3, 3): the Gaussian transition
+    (T) from each particle at t-1; rows (P,) landmark rows; y (P, 2) observations;
+    R (P, 2, 2) noise covariances; sensor (N, 3) sensor poses; nu (N, P, 2)
+    innovations and H (N, P, 2, 2) Jacobians dh/dtheta at theta_{t-1};
+    precision (N, P, 2, 2) R^-1 weighted by the mixture responsibilities;
+    motion_mean (3,), motion_jacobian (3, 3), motion_cov (3, 3): the transition of
+    the previous weighted mean pose (the linearisation track of the observed M-step).
+    """
+
+    step: int
+    particles: np.ndarray
+    weights: np.ndarray
+    log_weights_prev: np.ndarray
+    prior_weights: np.ndarray
+    ancestors: np.ndarray
+    transition_means: np.ndarray
+    transition_covs: np.ndarray
+    rows: np.ndarray
+    y: np.ndarray
+    R: np.ndarray
+    sensor: np.ndarray
+    nu: np.ndarray
+    H: np.ndarray
+    precision: np.ndarray
+    motion_mean: np.ndarray
+    motion_jacobian: np.ndarray
+    motion_cov: np.ndarray
+
+
+class MStep(Protocol):
+    """An EM update of the map theta from the E-step of one filter step."""
+
+    def add_landmarks(self, count: int) -> None:
+        """New rows at the end of the landmark table."""
+
+    def keep_landmarks(self, keep: np.ndarray) -> None:
+        """Rows removed from the landmark table (``keep`` False)."""
+
+    def update(self, data: FilterStepData, table: LandmarkTable) -> np.ndarray | None:
+        """Blend in the step's statistics and run the M-step on ``table.theta``.
+
+        Returns the correction of the current pose implied by the new map (the
+        filter shifts its particles by it), or None.
+        """
+
+    def covariances(self, rows: np.ndarray | slice) -> np.ndarray:
+        """Landmark covariances (K, 2, 2) for the association gate and the likelihood."""
+
+    def map_covariances(self) -> np.ndarray:
+        """Landmark covariances (M, 2, 2) reported with the map."""
