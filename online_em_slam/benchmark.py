@@ -1,13 +1,32 @@
 """Monte Carlo benchmark of the seed's simulated experiment (issue: accuracy benchmark).
 
     online-em-slam-benchmark --runs 20 --particles 100 --output results/benchmark
+    online-em-slam-benchmark --runs 20 --laps 1 3 10 --output results/laps
+    online-em-slam-benchmark --runs 20 --laps 1 3 10 --set em.m_step=observed --tag observed \\
+        --output results/laps --compare-with results/laps/results.json
 
 For each seeded replication of the simulator, every method runs on the same
 inputs: online EM with each smoother, Block Online EM and its averaged
 variant, FastSLAM 2.0, EKF-SLAM, and the GTSAM batch maximum-likelihood
-reference (skipped with a note when gtsam is not installed).  Prints a table
-and writes ``results.json``, ``table.md`` and ``landmark_error.png`` (mean
-landmark error against time, the seed's figure 2).
+reference (skipped with a note when gtsam is not installed).  Every method is
+scored by its landmark RMSE and its split into *shape* (RMSE after the best
+rigid 2-D fit of the estimated map onto the truth) and *frame*
+(sqrt(RMSE^2 - shape^2)); see :func:`online_em_slam.evaluation.map_error_split`.
+
+* Seed run (default): prints a table and writes ``results.json``, ``table.md``
+  and ``landmark_error.png`` (mean landmark error against time, the seed's figure 2).
+* ``--laps L1 L2 ...``: the closed route driven max(L) times (``ScenarioConfig.laps``,
+  fresh noise every lap); the online methods are scored after every lap of one
+  long run (an L-lap run is the exact prefix of a longer one), GTSAM is solved
+  once per requested L.  Writes ``results.json``, ``table.md`` and
+  ``laps_error.png`` (RMSE, shape, frame against laps, mean +- standard error).
+* ``--set section.key=value`` (repeatable) overrides the online-EM methods'
+  configuration (after the method's own smoother / algorithm); the baselines
+  keep the scenario's configuration and stay a fixed reference.
+* ``--tag NAME`` names the output files (``results-NAME.json`` ...) so variants
+  share a directory; ``--compare-with FILE`` prints the paired differences
+  (this run - FILE, same method, laps and seed) and ``--compare A B`` does it
+  for two existing files without running anything.
 """
 from __future__ import annotations
 
@@ -16,12 +35,13 @@ import json
 import math
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .core import OnlineEMSlam, SlamConfig
 from .core.angles import wrap_angle
+from .evaluation import landmark_pairs_by_id, map_error_split
 from .simulation import Scenario, ScenarioConfig, feed, simulate, slam_config_for
 
 ONLINE_METHODS = {
@@ -33,6 +53,8 @@ ONLINE_METHODS = {
 }
 BASELINES = ("fastslam2", "ekf_slam")
 ALL_METHODS = tuple(ONLINE_METHODS) + BASELINES + ("gtsam_batch",)
+# Per-run scores summarised (mean, se) and compared pairwise.
+SCORES = ("landmark_rmse", "shape_error", "frame_error", "pose_rmse", "mean_step_ms")
 
 
 @dataclass
@@ -40,6 +62,8 @@ class RunResult:
     method: str
     seed: int
     landmark_rmse: float
+    shape_error: float
+    frame_error: float
     pose_rmse: float
     mean_step_ms: float
     p99_step_ms: float
@@ -47,16 +71,46 @@ class RunResult:
     mean_true_pose_loglik: float
     n_landmarks: int
     error_curve: list[float]
+    laps: int | None = None          # laps driven when scored; None for the seed run
+    n_steps: int = 0
 
     def to_dict(self) -> dict:
         return self.__dict__.copy()
 
 
-def make_estimator(method: str, config: SlamConfig, scenario: Scenario):
+# --------------------------------------------------------------------------- configuration
+
+def parse_override(text: str) -> tuple[str, str, object]:
+    """``section.key=value`` -> (section, key, value); the value is read as YAML
+    (``25`` -> int, ``0.5`` -> float, ``observed`` -> str, ``[0.9, 0.1]`` -> list)."""
+    import yaml
+    name, sep, value = text.partition("=")
+    section, dot, key = name.strip().partition(".")
+    if not sep or not dot or not section or not key:
+        raise ValueError(f"--set expects section.key=value, got {text!r}")
+    return section, key, yaml.safe_load(value)
+
+
+def apply_overrides(config: SlamConfig, overrides: list[str] | tuple[str, ...]) -> SlamConfig:
+    """Copy of ``config`` with the ``section.key=value`` overrides, validated
+    (unknown sections / keys and out-of-range values raise ValueError)."""
+    if not overrides:
+        return config
+    data = config.to_dict()
+    for text in overrides:
+        section, key, value = parse_override(text)
+        if section not in data:
+            raise ValueError(f"--set {text!r}: unknown section {section!r}")
+        data[section][key] = value
+    return SlamConfig.from_dict(data)
+
+
+def make_estimator(method: str, config: SlamConfig, scenario: Scenario, overrides=()):
     if method in ONLINE_METHODS:
         options = ONLINE_METHODS[method]
         config.filter.smoother = options["smoother"]
         config.em.algorithm = options["algorithm"]
+        config = apply_overrides(config, overrides)
         return OnlineEMSlam(config, initial_pose=scenario.initial_pose, stamp=0.0)
     if method == "fastslam2":
         from .baselines.fastslam2 import FastSlam2
@@ -67,11 +121,17 @@ def make_estimator(method: str, config: SlamConfig, scenario: Scenario):
     raise ValueError(f"unknown method {method!r}; choose from {', '.join(ALL_METHODS)}")
 
 
+# --------------------------------------------------------------------------- one run
+
 def landmark_errors(ids: np.ndarray, positions: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """Euclidean error of each estimated landmark whose id indexes the true landmarks."""
-    ids = np.asarray(ids, dtype=int)
-    keep = (ids >= 0) & (ids < len(truth))
-    return np.linalg.norm(np.asarray(positions)[keep] - truth[ids[keep]], axis=1)
+    estimated, true = landmark_pairs_by_id(ids, positions, truth)
+    return np.linalg.norm(estimated - true, axis=1)
+
+
+def map_scores(ids: np.ndarray, positions: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
+    """Landmark RMSE, shape and frame error of a map matched to the truth by id."""
+    return tuple(float(v) for v in map_error_split(*landmark_pairs_by_id(ids, positions, truth)))
 
 
 def pose_consistency(mean: np.ndarray, cov: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
@@ -87,54 +147,57 @@ def pose_consistency(mean: np.ndarray, cov: np.ndarray, truth: np.ndarray) -> tu
     return nees, -0.5 * (nees + logdet + 3 * math.log(2 * math.pi))
 
 
-def run_online(method: str, scenario: Scenario, particles: int, seed: int) -> RunResult:
+@dataclass
+class StepLog:
+    """Per-step records of a run, scored on any prefix (for the lap checkpoints)."""
+
+    durations: list[float] = field(default_factory=list)
+    pose_sq: list[float] = field(default_factory=list)
+    nees: list[float] = field(default_factory=list)
+    loglik: list[float] = field(default_factory=list)
+    curve: list[float] = field(default_factory=list)
+
+    def record(self, estimator, truth: np.ndarray, seconds: float) -> None:
+        estimate = estimator.pose()
+        self.durations.append(seconds)
+        self.pose_sq.append(float(np.sum((estimate.mean[:2] - truth[:2]) ** 2)))
+        nees, loglik = pose_consistency(estimate.mean, estimate.covariance, truth)
+        self.nees.append(nees)
+        self.loglik.append(loglik)
+
+    def result(self, method: str, seed: int, estimator, truth: np.ndarray, laps: int | None) -> RunResult:
+        lm = estimator.landmarks()
+        ms = 1e3 * np.asarray(self.durations)
+        return RunResult(method, seed, *map_scores(lm.ids, lm.positions, truth),
+                         float(np.sqrt(np.mean(self.pose_sq))), float(ms.mean()), float(np.percentile(ms, 99)),
+                         float(np.nanmean(self.nees)), float(np.nanmean(self.loglik)), int(len(lm)),
+                         list(self.curve), laps, len(ms))
+
+
+def run_online(method: str, scenario: Scenario, particles: int, seed: int, overrides=(),
+               checkpoints: dict[int, int] | None = None) -> list[RunResult]:
+    """Run one method over the scenario; scored at the end, or after each step
+    count in ``checkpoints`` (step count -> laps driven).  The per-step landmark
+    error curve (the seed's figure 2) is kept for the seed run only."""
     config = slam_config_for(scenario, num_particles=particles, seed=seed)
-    estimator = make_estimator(method, config, scenario)
-    durations, pose_sq, nees, loglik, curve = [], [], [], [], []
+    estimator = make_estimator(method, config, scenario, overrides)
+    log, results = StepLog(), []
     for k, step in enumerate(scenario.steps):
         started = time.perf_counter()
         feed(estimator, step)
-        durations.append(time.perf_counter() - started)
-        estimate = estimator.pose()
-        truth = scenario.true_poses[k + 1]
-        pose_sq.append(float(np.sum((estimate.mean[:2] - truth[:2]) ** 2)))
-        n, ll = pose_consistency(estimate.mean, estimate.covariance, truth)
-        nees.append(n)
-        loglik.append(ll)
-        lm = estimator.landmarks()
-        errors = landmark_errors(lm.ids, lm.positions, scenario.landmarks)
-        curve.append(float(np.sqrt(np.mean(errors ** 2))) if errors.size else math.nan)
-    lm = estimator.landmarks()
-    errors = landmark_errors(lm.ids, lm.positions, scenario.landmarks)
-    ms = 1e3 * np.asarray(durations)
-    return RunResult(method, seed, float(np.sqrt(np.mean(errors ** 2))), float(np.sqrt(np.mean(pose_sq))),
-                     float(ms.mean()), float(np.percentile(ms, 99)), float(np.nanmean(nees)),
-                     float(np.nanmean(loglik)), int(len(lm)), curve)
+        log.record(estimator, scenario.true_poses[k + 1], time.perf_counter() - started)
+        if checkpoints is None:
+            lm = estimator.landmarks()
+            errors = landmark_errors(lm.ids, lm.positions, scenario.landmarks)
+            log.curve.append(float(np.sqrt(np.mean(errors ** 2))) if errors.size else math.nan)
+        elif k + 1 in checkpoints:
+            results.append(log.result(method, seed, estimator, scenario.landmarks, checkpoints[k + 1]))
+    if checkpoints is None:
+        results.append(log.result(method, seed, estimator, scenario.landmarks, None))
+    return results
 
 
-def run_em_passes(scenario: Scenario, particles: int, seed: int, passes: int) -> list[float]:
-    """Landmark RMSE after each of ``passes`` passes of online EM (forward smoother)
-    over the same data, each pass starting from the previous pass's map: batch
-    EM iterations, which show how far one online pass is from the EM fixed point."""
-    config = slam_config_for(scenario, num_particles=particles, seed=seed)
-    estimator = make_estimator("online_em_forward", config, scenario)
-    rmse = []
-    for index in range(passes):
-        if index:
-            estimator.start_new_pass(scenario.initial_pose, stamp=0.0)
-        for step in scenario.steps:
-            feed(estimator, step)
-        lm = estimator.landmarks()
-        rmse.append(float(np.sqrt(np.mean(landmark_errors(lm.ids, lm.positions, scenario.landmarks) ** 2))))
-    return rmse
-
-
-def em_passes_job(job: tuple[int, int, int, int]) -> list[float]:
-    seed, particles, steps, passes = job
-    return run_em_passes(simulate(ScenarioConfig(seed=seed, n_steps=steps)), particles, seed, passes)
-
-
-def run_gtsam(scenario: Scenario, particles: int, seed: int) -> RunResult | None:
+def run_gtsam(scenario: Scenario, particles: int, seed: int, laps: int | None = None) -> RunResult | None:
     from .baselines.gtsam_batch import batch_estimate
     config = slam_config_for(scenario, num_particles=particles, seed=seed)
     started = time.perf_counter()
@@ -144,60 +207,168 @@ def run_gtsam(scenario: Scenario, particles: int, seed: int) -> RunResult | None
         return None
     elapsed = time.perf_counter() - started
     poses, landmarks = result.poses, result.landmarks
-    seen = np.all(np.isfinite(landmarks), axis=1)
-    errors = np.linalg.norm(landmarks[seen] - scenario.landmarks[seen], axis=1)
+    scores = map_scores(np.arange(len(landmarks)), landmarks, scenario.landmarks)   # unseen rows are NaN
     pose_err = np.sum((poses[1:, :2] - scenario.true_poses[1:, :2]) ** 2, axis=1)
     per_step = 1e3 * elapsed / scenario.n_steps
-    return RunResult("gtsam_batch", seed, float(np.sqrt(np.mean(errors ** 2))), float(np.sqrt(np.mean(pose_err))),
-                     per_step, per_step, math.nan, math.nan, int(len(landmarks)), [])
+    return RunResult("gtsam_batch", seed, *scores, float(np.sqrt(np.mean(pose_err))),
+                     per_step, per_step, math.nan, math.nan, int(len(landmarks)), [], laps, scenario.n_steps)
 
 
-def run_one(job: tuple[str, int, int, int]) -> dict | None:
-    method, seed, particles, steps = job
-    scenario = simulate(ScenarioConfig(seed=seed, n_steps=steps))
-    result = run_gtsam(scenario, particles, seed) if method == "gtsam_batch" else run_online(
-        method, scenario, particles, seed)
-    return None if result is None else result.to_dict()
+@dataclass(frozen=True)
+class Job:
+    """One method on one seed (picklable for the worker processes)."""
+
+    method: str
+    seed: int
+    particles: int
+    steps: int
+    laps: tuple[int, ...] = ()          # empty: the seed run of ``steps`` steps
+    overrides: tuple[str, ...] = ()
 
 
-def summarize(results: list[dict]) -> dict[str, dict[str, float]]:
-    table: dict[str, dict[str, float]] = {}
-    for method in ALL_METHODS:
-        rows = [r for r in results if r["method"] == method]
-        if not rows:
-            continue
+def run_one(job: Job) -> list[dict]:
+    """Results (as dicts) of one job: one row, or one per lap with ``laps``."""
+    if job.method == "gtsam_batch":
+        runs = [(simulate(ScenarioConfig(seed=job.seed, n_steps=job.steps, laps=laps)), laps or None)
+                for laps in (job.laps or (0,))]
+        results = [run_gtsam(scenario, job.particles, job.seed, laps) for scenario, laps in runs]
+        return [r.to_dict() for r in results if r is not None]
+    if not job.laps:
+        scenario = simulate(ScenarioConfig(seed=job.seed, n_steps=job.steps))
+        return [r.to_dict() for r in run_online(job.method, scenario, job.particles, job.seed, job.overrides)]
+    scenario = simulate(ScenarioConfig(seed=job.seed, laps=max(job.laps)))
+    checkpoints = {int(end): lap for lap, end in enumerate(scenario.lap_ends, start=1)}
+    return [r.to_dict() for r in run_online(job.method, scenario, job.particles, job.seed, job.overrides,
+                                            checkpoints)]
+
+
+# --------------------------------------------------------------------------- summaries
+
+def mean_and_se(values) -> tuple[float, float]:
+    """Mean and standard error of the mean over the finite values (se NaN below 2)."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return math.nan, math.nan
+    return float(v.mean()), float(v.std(ddof=1) / math.sqrt(v.size)) if v.size > 1 else math.nan
+
+
+def group_key(row: dict) -> tuple[str, int]:
+    return row["method"], row.get("laps") or 0
+
+
+def _in_method_order(groups: dict) -> list:
+    """Items of a dict keyed by (method, laps), in the order of ALL_METHODS, then laps."""
+    order = {m: i for i, m in enumerate(ALL_METHODS)}
+    return sorted(groups.items(), key=lambda item: (order.get(item[0][0], len(order)), item[0][1]))
+
+
+def summarize(results: list[dict]) -> list[dict]:
+    """One row per (method, laps): mean and standard error of every score over the seeds."""
+    groups: dict[tuple[str, int], list[dict]] = {}
+    for row in results:
+        groups.setdefault(group_key(row), []).append(row)
+    table = []
+    for (method, laps), rows in _in_method_order(groups):
         col = lambda key: np.array([r[key] for r in rows], dtype=float)  # noqa: E731
-        lm = col("landmark_rmse")
-        table[method] = {
-            "runs": len(rows),
-            "landmark_rmse_mean": float(np.mean(lm)),
-            "landmark_rmse_median": float(np.median(lm)),
-            "landmark_rmse_std": float(np.std(lm)),
-            "pose_rmse_mean": float(np.mean(col("pose_rmse"))),
-            "mean_step_ms": float(np.mean(col("mean_step_ms"))),
-            "p99_step_ms": float(np.mean(col("p99_step_ms"))),
-            "mean_nees": float(np.nanmean(col("mean_nees"))) if np.isfinite(col("mean_nees")).any() else math.nan,
-            "mean_true_pose_loglik": (float(np.nanmean(col("mean_true_pose_loglik")))
-                                      if np.isfinite(col("mean_true_pose_loglik")).any() else math.nan),
-        }
+        summary = {"method": method, "laps": laps or None, "runs": len(rows), "n_steps": rows[0].get("n_steps")}
+        for key in SCORES + ("p99_step_ms", "mean_nees", "mean_true_pose_loglik"):
+            summary[f"{key}_mean"], summary[f"{key}_se"] = mean_and_se(col(key))
+        summary["landmark_rmse_median"] = float(np.median(col("landmark_rmse")))
+        summary["landmark_rmse_std"] = float(np.std(col("landmark_rmse")))
+        table.append(summary)
     return table
 
 
-def format_table(table: dict[str, dict[str, float]]) -> str:
-    header = ("| method | runs | landmark RMSE mean (m) | median | std | pose RMSE (m) | mean step (ms) "
-              "| p99 step (ms) | mean NEES (3 dof) | mean log-lik of true pose |")
-    lines = [header, "|" + "---|" * 10]
-    for method, row in table.items():
-        lines.append(f"| {method} | {row['runs']} | {row['landmark_rmse_mean']:.3f} | {row['landmark_rmse_median']:.3f} "
-                     f"| {row['landmark_rmse_std']:.3f} | {row['pose_rmse_mean']:.3f} | {row['mean_step_ms']:.3f} "
-                     f"| {row['p99_step_ms']:.3f} | {row['mean_nees']:.2f} | {row['mean_true_pose_loglik']:.2f} |")
+def _pm(row: dict, key: str, digits: int = 3) -> str:
+    mean, se = row[f"{key}_mean"], row[f"{key}_se"]
+    text = "n/a" if not math.isfinite(mean) else f"{mean:.{digits}f}"
+    return text if not math.isfinite(se) else f"{text} ± {se:.{digits}f}"
+
+
+def format_table(table: list[dict]) -> str:
+    """Seed-run table: scores with their standard errors, timing and consistency."""
+    header = ("| method | runs | landmark RMSE (m) | median | shape (m) | frame (m) | pose RMSE (m) "
+              "| mean step (ms) | p99 step (ms) | mean NEES (3 dof) | mean log-lik of true pose |")
+    lines = [header, "|" + "---|" * 11]
+    for row in table:
+        lines.append(f"| {row['method']} | {row['runs']} | {_pm(row, 'landmark_rmse')} "
+                     f"| {row['landmark_rmse_median']:.3f} | {_pm(row, 'shape_error')} | {_pm(row, 'frame_error')} "
+                     f"| {_pm(row, 'pose_rmse')} | {row['mean_step_ms_mean']:.3f} | {row['p99_step_ms_mean']:.3f} "
+                     f"| {row['mean_nees_mean']:.2f} | {row['mean_true_pose_loglik_mean']:.2f} |")
     return "\n".join(lines)
 
 
-def plot_curves(results: list[dict], path: str, dt: float) -> None:
+def format_laps_table(table: list[dict], laps: list[int]) -> str:
+    """Long-run table: one row per method and requested lap count, mean ± se."""
+    header = ("| method | laps | runs | steps | landmark RMSE (m) | shape (m) | frame (m) | pose RMSE (m) "
+              "| mean step (ms) |")
+    lines = [header, "|" + "---|" * 9]
+    for row in table:
+        if row["laps"] in laps:
+            lines.append(f"| {row['method']} | {row['laps']} | {row['runs']} | {row['n_steps']} "
+                         f"| {_pm(row, 'landmark_rmse')} | {_pm(row, 'shape_error')} | {_pm(row, 'frame_error')} "
+                         f"| {_pm(row, 'pose_rmse')} | {row['mean_step_ms_mean']:.3f} |")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- paired comparison
+
+def paired_differences(runs_a: list[dict], runs_b: list[dict]) -> list[dict]:
+    """B - A per (method, laps) over the seeds present in both: mean and
+    standard error of the per-seed differences of every score (the seeds share
+    the simulated noise, so pairing removes the between-seed variance)."""
+    index_a = {group_key(r) + (r["seed"],): r for r in runs_a}
+    groups: dict[tuple[str, int], list[tuple[dict, dict]]] = {}
+    for rb in runs_b:
+        ra = index_a.get(group_key(rb) + (rb["seed"],))
+        if ra is not None:
+            groups.setdefault(group_key(rb), []).append((ra, rb))
+    table = []
+    for (method, laps), pairs in _in_method_order(groups):
+        row = {"method": method, "laps": laps or None, "runs": len(pairs)}
+        for key in SCORES:
+            a = np.array([p[0][key] for p in pairs], dtype=float)
+            b = np.array([p[1][key] for p in pairs], dtype=float)
+            row[f"{key}_a"], row[f"{key}_b"] = float(np.nanmean(a)), float(np.nanmean(b))
+            row[f"{key}_mean"], row[f"{key}_se"] = mean_and_se(b - a)
+        table.append(row)
+    return table
+
+
+def format_paired(table: list[dict], name_a: str, name_b: str) -> str:
+    lines = [f"Paired differences {name_b} - {name_a} (mean ± se over seeds; negative: {name_b} better)", "",
+             "| method | laps | pairs | landmark RMSE A -> B (m) | diff | shape diff | frame diff "
+             "| pose RMSE diff | step ms diff |", "|" + "---|" * 9]
+    for row in table:
+        lines.append(f"| {row['method']} | {row['laps'] or '-'} | {row['runs']} "
+                     f"| {row['landmark_rmse_a']:.3f} -> {row['landmark_rmse_b']:.3f} | {_pm(row, 'landmark_rmse')} "
+                     f"| {_pm(row, 'shape_error')} | {_pm(row, 'frame_error')} | {_pm(row, 'pose_rmse')} "
+                     f"| {_pm(row, 'mean_step_ms')} |")
+    return "\n".join(lines)
+
+
+def compare_files(path_a: str, path_b: str) -> str:
+    """Paired-difference table B - A of two results files, at B's requested laps."""
+    with open(path_a) as ha, open(path_b) as hb:
+        a, b = json.load(ha), json.load(hb)
+    name = lambda data, path: data.get("meta", {}).get("tag") or os.path.basename(path)  # noqa: E731
+    requested = set(b.get("meta", {}).get("laps") or [])
+    runs_b = [r for r in b["runs"] if not requested or r.get("laps") in requested]
+    return format_paired(paired_differences(a["runs"], runs_b), name(a, path_a), name(b, path_b))
+
+
+# --------------------------------------------------------------------------- plots
+
+def _pyplot():
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    return plt
+
+
+def plot_curves(results: list[dict], path: str, dt: float) -> None:
+    plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for method in ALL_METHODS:
         curves = [r["error_curve"] for r in results if r["method"] == method and r["error_curve"]]
@@ -219,6 +390,38 @@ def plot_curves(results: list[dict], path: str, dt: float) -> None:
     plt.close(fig)
 
 
+def plot_laps(table: list[dict], path: str, title: str = "") -> None:
+    """Landmark RMSE, shape and frame error against laps, mean ± se, one line per method."""
+    plt = _pyplot()
+    from matplotlib.ticker import FormatStrFormatter, MaxNLocator
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.5), sharey=True)
+    for method in ALL_METHODS:
+        rows = [r for r in table if r["method"] == method and r["laps"]]
+        if not rows:
+            continue
+        laps = [r["laps"] for r in rows]
+        for ax, key in zip(axes, ("landmark_rmse", "shape_error", "frame_error")):
+            ax.errorbar(laps, [r[f"{key}_mean"] for r in rows], yerr=[r[f"{key}_se"] for r in rows],
+                        marker="o", markersize=3, capsize=2, label=method)
+    for ax, name in zip(axes, ("landmark RMSE", "shape (after the best rigid fit)", "frame")):
+        ax.set_title(name)
+        ax.set_xlabel("laps of the route")
+        ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+        ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].set_ylabel("error (m), mean ± se over seeds")
+    axes[0].legend(fontsize=7)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# --------------------------------------------------------------------------- command line
+
 def _pool_map(function, jobs: list, workers: int) -> list:
     """Map over worker processes, each with one BLAS thread: the per-step
     matrices are small, and workers competing for cores would distort timings."""
@@ -231,9 +434,31 @@ def _pool_map(function, jobs: list, workers: int) -> list:
         return list(pool.imap(function, jobs))
 
 
+def run_em_passes(scenario: Scenario, particles: int, seed: int, passes: int, overrides=()) -> list[float]:
+    """Landmark RMSE after each of ``passes`` passes of online EM (forward smoother)
+    over the same data, each pass starting from the previous pass's map: batch
+    EM iterations, which show how far one online pass is from the EM fixed point."""
+    config = slam_config_for(scenario, num_particles=particles, seed=seed)
+    estimator = make_estimator("online_em_forward", config, scenario, overrides)
+    rmse = []
+    for index in range(passes):
+        if index:
+            estimator.start_new_pass(scenario.initial_pose, stamp=0.0)
+        for step in scenario.steps:
+            feed(estimator, step)
+        lm = estimator.landmarks()
+        rmse.append(float(np.sqrt(np.mean(landmark_errors(lm.ids, lm.positions, scenario.landmarks) ** 2))))
+    return rmse
+
+
+def em_passes_job(job: tuple) -> list[float]:
+    seed, particles, steps, passes, overrides = job
+    return run_em_passes(simulate(ScenarioConfig(seed=seed, n_steps=steps)), particles, seed, passes, overrides)
+
+
 def em_passes_main(args) -> int:
     """``--em-passes K``: mean landmark RMSE after each pass, written to em_passes.json."""
-    jobs = [(seed, args.particles, args.steps, args.em_passes) for seed in range(args.runs)]
+    jobs = [(seed, args.particles, args.steps, args.em_passes, tuple(args.set)) for seed in range(args.runs)]
     curves = np.array(_pool_map(em_passes_job, jobs, args.jobs))                      # (runs, K)
     lines = ["| pass | landmark RMSE mean (m) | median | std |", "|---|---|---|---|"]
     for k in range(args.em_passes):
@@ -241,54 +466,104 @@ def em_passes_main(args) -> int:
         lines.append(f"| {k + 1} | {column.mean():.3f} | {np.median(column):.3f} | {column.std(ddof=1) if len(column) > 1 else 0.0:.3f} |")
     text = "\n".join(lines)
     print(text)
-    with open(os.path.join(args.output, "em_passes.json"), "w") as handle:
+    path = output_path(args, "em_passes", "json")
+    with open(path, "w") as handle:
         json.dump({"meta": {"runs": args.runs, "particles": args.particles, "steps": args.steps,
-                            "passes": args.em_passes},
+                            "passes": args.em_passes, "overrides": args.set, "tag": args.tag},
                    "rmse_per_pass": curves.tolist(), "mean": curves.mean(axis=0).tolist()}, handle, indent=1)
-    print(f"wrote {args.output}/em_passes.json")
+    print(f"wrote {path}")
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
+def output_path(args, name: str, extension: str) -> str:
+    """``OUTPUT/name.ext``, or ``OUTPUT/name-TAG.ext`` with ``--tag``."""
+    return os.path.join(args.output, f"{name}-{args.tag}.{extension}" if args.tag else f"{name}.{extension}")
+
+
+def run_jobs(args) -> list[dict]:
+    jobs = [Job(m, s, args.particles, args.steps, tuple(sorted(set(args.laps or ()))), tuple(args.set))
+            for s in range(args.runs) for m in args.methods]
+    if args.jobs > 1:
+        return [row for rows in _pool_map(run_one, jobs, args.jobs) for row in rows]
+    results = []
+    for i, job in enumerate(jobs, 1):
+        results.extend(run_one(job))
+        print(f"\r{i}/{len(jobs)} {job.method} seed {job.seed}", end="", flush=True)
+    print()
+    return results
+
+
+def write_outputs(args, results: list[dict], wall_time: float) -> str:
+    """Print the table and write results / table / figure; returns the results path."""
+    table = summarize(results)
+    text = format_laps_table(table, args.laps) if args.laps else format_table(table)
+    print(text)
+    meta = {"runs": args.runs, "particles": args.particles, "steps": None if args.laps else args.steps,
+            "laps": args.laps, "overrides": args.set, "tag": args.tag, "methods": args.methods,
+            "wall_time_s": wall_time, "cpu_count": os.cpu_count(),
+            "date": time.strftime("%Y-%m-%d"),
+            "scores": "landmark RMSE matched by id; shape = RMSE after the best rigid 2-D fit onto the truth; "
+                      "frame = sqrt(RMSE^2 - shape^2)"}
+    paths = [output_path(args, "results", "json"), output_path(args, "table", "md"),
+             output_path(args, "laps_error" if args.laps else "landmark_error", "png")]
+    with open(paths[0], "w") as handle:
+        json.dump({"meta": meta, "summary": table, "runs": results}, handle, indent=1)
+    with open(paths[1], "w") as handle:
+        handle.write(text + "\n")
+    if args.laps:
+        plot_laps(table, paths[2], " ".join([args.tag] + args.set))
+    else:
+        plot_curves(results, paths[2], ScenarioConfig().dt)
+    print("wrote " + ", ".join(paths))
+    return paths[0]
+
+
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     parser.add_argument("--runs", type=int, default=20, help="Monte Carlo replications (seeds 0..runs-1)")
     parser.add_argument("--particles", type=int, default=100)
-    parser.add_argument("--steps", type=int, default=1500, help="simulated steps per run")
+    parser.add_argument("--steps", type=int, default=1500, help="simulated steps per run (seed run)")
+    parser.add_argument("--laps", type=int, nargs="+", metavar="L",
+                        help="long-run experiment: drive the closed route L times (scored after each lap)")
     parser.add_argument("--methods", nargs="+", default=list(ALL_METHODS), choices=ALL_METHODS)
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="override of the online-EM configuration (repeatable), e.g. em.m_step=observed")
+    parser.add_argument("--tag", default="", help="name of this variant: output files get a -TAG suffix")
+    parser.add_argument("--compare-with", metavar="FILE",
+                        help="after the run, paired differences against another results JSON (same seeds)")
+    parser.add_argument("--compare", nargs=2, metavar=("A", "B"),
+                        help="only print the paired differences B - A of two results JSON files")
     parser.add_argument("--jobs", type=int, default=1,
                         help="worker processes (timings are honest with jobs <= cores)")
     parser.add_argument("--output", default="results/benchmark")
     parser.add_argument("--em-passes", type=int, default=0, metavar="K",
                         help="instead of the comparison, run K passes of online EM over each run's data "
                              "(batch EM iterations) and report the landmark RMSE after each pass")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
+    if args.compare:
+        print(compare_files(*args.compare))
+        return 0
+    if args.laps and min(args.laps) < 1:
+        parser.error("--laps: lap counts must be >= 1")
+    try:
+        apply_overrides(slam_config_for(ScenarioConfig()), args.set)     # fail before hours of runs
+    except ValueError as error:
+        parser.error(str(error))
     os.makedirs(args.output, exist_ok=True)
     if args.em_passes > 0:
         return em_passes_main(args)
-    jobs = [(m, s, args.particles, args.steps) for s in range(args.runs) for m in args.methods]
     started = time.perf_counter()
-    if args.jobs > 1:
-        results = [r for r in _pool_map(run_one, jobs, args.jobs) if r is not None]
-    else:
-        results = []
-        for i, job in enumerate(jobs, 1):
-            result = run_one(job)
-            if result is not None:
-                results.append(result)
-            print(f"\r{i}/{len(jobs)} {job[0]} seed {job[1]}", end="", flush=True)
+    results = run_jobs(args)
+    path = write_outputs(args, results, time.perf_counter() - started)
+    if args.compare_with:
         print()
-    table = summarize(results)
-    text = format_table(table)
-    print(text)
-    meta = {"runs": args.runs, "particles": args.particles, "steps": args.steps,
-            "wall_time_s": time.perf_counter() - started, "cpu_count": os.cpu_count()}
-    with open(os.path.join(args.output, "results.json"), "w") as handle:
-        json.dump({"meta": meta, "summary": table, "runs": results}, handle, indent=1)
-    with open(os.path.join(args.output, "table.md"), "w") as handle:
-        handle.write(text + "\n")
-    plot_curves(results, os.path.join(args.output, "landmark_error.png"), ScenarioConfig().dt)
-    print(f"wrote {args.output}/results.json, table.md, landmark_error.png")
+        print(compare_files(args.compare_with, path))
     return 0
 
 
