@@ -109,3 +109,150 @@ def test_yaml_formatting_of_arrays_and_nested_messages():
     assert "poses:" in lines and "- position:" in lines and "    x: 1.5" in lines
     assert lines[-1] == f"- '... {MAX_ARRAY + 3} elements'"
     assert len(message_to_yaml(msg, full_arrays=True)) > len(lines)
+
+
+# --------------------------------------------------------------------------- record + evaluate
+
+OFFSET = (2.0, 0.5)                                     # base_link -> laser in the truth bag
+
+
+def _truth_track():
+    """Base poses (n, 4: t, x, y, yaw) on a circle in the GPS frame, 20 Hz for 10 s."""
+    t = 100.0 + np.arange(200) * 0.05
+    a = 0.3 * (t - t[0])
+    return np.column_stack([t, 5 + 20 * np.sin(a), -3 + 20 * (1 - np.cos(a)), a])
+
+
+def _write_truth_bag(path, track, landmarks):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from online_em_slam.cloud import encode
+    from online_em_slam.evaluation import sensor_points
+    from online_em_slam.kth.convert import jazzy_typestore
+
+    ts = jazzy_typestore()
+    T = ts.types
+
+    def header(t, frame):
+        sec = int(t)
+        return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](
+            sec=sec, nanosec=int(round((t - sec) * 1e9))), frame_id=frame)
+
+    V3, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
+    laser = T["geometry_msgs/msg/TransformStamped"](header=header(track[0, 0], "base_link"), child_frame_id="laser",
+                                                    transform=T["geometry_msgs/msg/Transform"](
+                                                        translation=V3(x=OFFSET[0], y=OFFSET[1], z=0.0),
+                                                        rotation=Q(x=0.0, y=0.0, z=0.0, w=1.0)))
+    specs, step, data = encode({"x": landmarks[:, 0], "y": landmarks[:, 1], "z": np.zeros(len(landmarks))},
+                               layout=(("x", "f4"), ("y", "f4"), ("z", "f4")))
+    cloud = T["sensor_msgs/msg/PointCloud2"](
+        header=header(track[0, 0], "gps"), height=1, width=len(landmarks),
+        fields=[T["sensor_msgs/msg/PointField"](name=f.name, offset=f.offset, datatype=f.datatype, count=f.count)
+                for f in specs], is_bigendian=False, point_step=step, row_step=step * len(landmarks),
+        data=np.frombuffer(data, dtype=np.uint8).copy(), is_dense=True)
+    events = [(track[0, 0], "/tf_static", "tf2_msgs/msg/TFMessage", T["tf2_msgs/msg/TFMessage"](transforms=[laser])),
+              (track[0, 0], "/ground_truth/landmarks", "sensor_msgs/msg/PointCloud2", cloud)]
+    # Odometry starts at (0, 0, 0): the truth track seen from its first pose.
+    from online_em_slam.evaluate_bag import compose, inverse
+    odom = compose(inverse(track[0, 1:4]), track[:, 1:4])
+    gps = sensor_points(track[:, 1:4], OFFSET)
+    for k, (t, x, y, yaw) in enumerate(np.column_stack([track[:, 0], odom])):
+        pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+                                           orientation=Q(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)))
+        events.append((t, "/odom", "nav_msgs/msg/Odometry", T["nav_msgs/msg/Odometry"](
+            header=header(t, "odom"), child_frame_id="base_link",
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=T["geometry_msgs/msg/Twist"](
+                linear=V3(x=0.0, y=0.0, z=0.0), angular=V3(x=0.0, y=0.0, z=0.0)), covariance=np.zeros(36)))))
+        if k % 2 == 0:
+            events.append((t, "/ground_truth/position", "geometry_msgs/msg/PointStamped",
+                           T["geometry_msgs/msg/PointStamped"](header=header(t, "gps"), point=T[
+                               "geometry_msgs/msg/Point"](x=gps[k, 0], y=gps[k, 1], z=0.0))))
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conns = {}
+        for t, topic, msgtype, msg in events:
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=ts)
+            writer.write(conns[topic], int(round(t * 1e9)), ts.serialize_cdr(msg, msgtype))
+
+
+def _landmark_cloud(xy, n_obs):
+    from sensor_msgs.msg import PointCloud2, PointField
+
+    from online_em_slam.cloud import LANDMARK_FIELDS, encode
+    cols = {"x": xy[:, 0], "y": xy[:, 1], "z": np.zeros(len(xy)), "id": np.arange(len(xy)), "n_obs": n_obs}
+    specs, step, data = encode(cols, layout=LANDMARK_FIELDS)
+    msg = PointCloud2(height=1, width=len(xy), is_bigendian=False, point_step=step, row_step=step * len(xy),
+                      data=data, is_dense=True,
+                      fields=[PointField(name=f.name, offset=f.offset, datatype=f.datatype, count=f.count)
+                              for f in specs])
+    msg.header.frame_id = "map"
+    return msg
+
+
+def _wait(predicate, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while not predicate() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return predicate()
+
+
+def test_record_then_evaluate_a_node_run(ros, tmp_path):
+    """Poses and a map published like the node's (map frame = its start pose, initial pose 0)
+    are recorded by online-em-slam-record; evaluate brings them into the GPS frame and
+    measures exactly the errors put in: 0.1 m lateral on the track, 0.2 m on each beacon."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from sensor_msgs.msg import PointCloud2
+
+    from online_em_slam import cli
+    from online_em_slam.evaluate_bag import compose, inverse
+    from online_em_slam.tum import read_tum
+
+    _, node, env = ros
+    track = _truth_track()
+    truth_landmarks = np.array([[0.0, 10.0], [15.0, 25.0], [30.0, 5.0], [-5.0, 30.0], [20.0, 15.0]])
+    _write_truth_bag(tmp_path / "truth", track, truth_landmarks)
+    to_map = inverse(track[0, 1:4])                     # node map frame = the start pose
+    estimate = compose(to_map, track[:, 1:4])
+    estimate[:, 1] += 0.1 * np.cos(estimate[:, 2])      # 0.1 m to the left of the true base pose
+    estimate[:, 0] -= 0.1 * np.sin(estimate[:, 2])
+    lm_map = compose(to_map, np.column_stack([truth_landmarks, np.zeros(5)]))[:, :2]
+    lm_map += 0.2 * np.array([1.0, 0.0])                # 0.2 m along the map x axis
+
+    deep_latched = QoSProfile(depth=1000, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    pose_pub = node.create_publisher(PoseWithCovarianceStamped, POSE_TOPIC, deep_latched)
+    map_pub = node.create_publisher(PointCloud2, LANDMARKS_TOPIC, deep_latched)
+    out = tmp_path / "recorded"
+    proc = subprocess.Popen(_tool("record", str(out), "--topics", POSE_TOPIC, LANDMARKS_TOPIC),
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert _wait(lambda: pose_pub.get_subscription_count() and map_pub.get_subscription_count(), 30)
+        for (t, *_), pose in zip(track, estimate):
+            pose_pub.publish(_pose_msg(t, *pose))
+        map_pub.publish(_landmark_cloud(lm_map, np.array([5, 5, 5, 5, 1])))
+        assert _wait(lambda: pose_pub.wait_for_all_acked(rclpy.duration.Duration(seconds=0.1))
+                     and map_pub.wait_for_all_acked(rclpy.duration.Duration(seconds=0.1)), 20)
+        time.sleep(0.3)
+    finally:
+        proc.send_signal(signal.SIGINT)                  # the bag is closed on Ctrl-C
+        stdout, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 0, stderr
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert summary["recorded"] == {POSE_TOPIC: 200, LANDMARKS_TOPIC: 1}
+
+    result = tmp_path / "eval"
+    assert cli.main(["evaluate", str(out), "--truth", str(tmp_path / "truth"), "--output", str(result),
+                     "--no-plot"]) == 0
+    metrics = json.loads((result / "metrics.json").read_text())
+    assert metrics["sensor_offset"] == list(OFFSET)      # from the truth bag's /tf_static
+    lm = metrics["landmarks"]
+    # The fifth beacon has one observation: not confirmed, so missed.
+    assert (lm["n_matched"], lm["n_spurious"], lm["n_true"]) == (4, 0, 5)
+    assert lm["rmse"] == pytest.approx(0.2, abs=1e-3)
+    assert metrics["trajectory"]["rmse"] == pytest.approx(0.1, abs=1e-3)
+    assert metrics["trajectory"]["n_compared"] == 100
+    tum = read_tum(result / "trajectory.tum")
+    assert tum.shape == (200, 8)
+    np.testing.assert_allclose(tum[:, 0], track[:, 0], atol=1e-6)
+    assert read_tum(result / "ground_truth.tum").shape == (100, 8)
