@@ -1,7 +1,9 @@
 """Lossless bag replay with rclpy (a stand-in for ``ros2 bag play`` where ros2cli is absent).
 
     online-em-slam-replay BAG [--rate R] [--topics T ...] [--wait-subscribers TOPIC:COUNT ...]
-                          [--wait-timeout S] [--clock] [--start-delay S] [--ack-timeout S]
+                          [--wait-timeout S] [--clock [HZ]] [--start-delay S] [--ack-timeout S]
+                          [--loop] [--start-offset S] [--playback-duration S] [--remap OLD:=NEW ...]
+                          [--exclude T ...] [--exclude-regex R] [--start-paused]
 
 Raw CDR bytes from the bag (rosbags reader) are published unchanged through
 publishers created with the real rclpy message classes (type names resolved with
@@ -10,7 +12,9 @@ follows the bag's log times scaled by ``--rate`` (``--rate 0``: as fast as
 possible).  QoS: RELIABLE + KEEP_ALL so that nothing is dropped by a matched
 reliable subscriber; topics recorded as TRANSIENT_LOCAL (/tf_static, latched
 ground truth) are offered TRANSIENT_LOCAL.  ``--clock`` publishes
-rosgraph_msgs/Clock on /clock with the log time before each message.
+rosgraph_msgs/Clock on /clock with the log time before each message (``--clock
+HZ``: at HZ).  The options that follow ``ros2 bag play`` (loop, offset, duration,
+remap, exclude, start paused) are described in :mod:`online_em_slam.replay_options`.
 
 At the end the number of messages published per topic is printed, followed by
 one JSON line ``{"published": {...}, "skipped_topics": {...}, ...}`` on stdout.
@@ -24,6 +28,8 @@ import json
 import sys
 import time
 from pathlib import Path
+
+from . import replay_options
 
 
 def message_class(msgtype: str):
@@ -67,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--wait-subscribers", nargs="+", default=[], metavar="TOPIC:COUNT",
                    help="before starting, wait until each topic has at least COUNT subscribers")
     p.add_argument("--wait-timeout", type=float, default=30.0, help="seconds to wait for subscribers")
-    p.add_argument("--clock", action="store_true", help="publish /clock (rosgraph_msgs/Clock)")
+    replay_options.add_arguments(p)      # --clock [HZ], --loop, --start-offset, --remap, ... (replay_options.py)
     p.add_argument("--start-delay", type=float, default=0.0, help="seconds to sleep after discovery")
     p.add_argument("--ack-timeout", type=float, default=10.0,
                    help="at the end, seconds to wait until reliable subscribers acknowledged everything")
@@ -103,7 +109,8 @@ def main(argv=None) -> int:
     exit_code = 0
     try:
         with Reader(bag) as reader:
-            conns = [c for c in reader.connections if args.topics is None or c.topic in args.topics]
+            conns = [c for c in reader.connections if (args.topics is None or c.topic in args.topics)
+                     and replay_options.selected(args, c.topic)]
             if args.topics:
                 missing = sorted(set(args.topics) - {c.topic for c in reader.connections})
                 if missing:
@@ -122,7 +129,7 @@ def main(argv=None) -> int:
                                  reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
                                  else DurabilityPolicy.VOLATILE)
-                publishers[conn.topic] = node.create_publisher(cls, conn.topic, qos)
+                publishers[conn.topic] = node.create_publisher(cls, replay_options.remap(args, conn.topic), qos)
                 counts[conn.topic] = 0
             clock_pub = None
             if args.clock:
@@ -153,7 +160,8 @@ def main(argv=None) -> int:
             last_clock = None
             last_report = start_wall
             n = 0
-            for conn, log_time, raw in reader.messages(connections=conns):
+            # replay_options.messages paces the messages (rate, pause, loop, offset) and sends /clock.
+            for conn, log_time, raw in replay_options.messages(args, reader, conns, node, log):
                 if bag_start is None:
                     bag_start = log_time
                 if args.rate > 0:
