@@ -1,42 +1,66 @@
-"""Launch the online EM SLAM node with its parameter file.
+"""Launch the online EM SLAM node with its parameter file, optionally RViz and a bag.
 
     ros2 launch online_em_slam online_em_slam.launch.py
     ros2 launch online_em_slam online_em_slam.launch.py use_sim_time:=true \
         params_file:=/path/to/my.yaml namespace:=robot1
+    # A converted KTH bag (online-em-slam-convert car_park car_park_bag), RViz and the node
+    # on sim time: `ros2 bag play --clock` starts after bag_delay seconds.
+    ros2 launch online_em_slam online_em_slam.launch.py rviz:=true bag:=$PWD/car_park_bag \
+        params_file:=$(ros2 pkg prefix online_em_slam)/share/online_em_slam/config/car_park.yaml
+
+With ``bag`` set, ``use_sim_time`` is forced on for the node and RViz (the bag's
+/clock drives them).  RViz and ``ros2 bag play`` need a real Jazzy install (rviz2,
+rosbag2); in the PyPI-wheels set-up use ``online-em-slam-replay BAG --clock`` and
+``python -m online_em_slam.ros.node`` instead (README).
 """
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
-from launch.substitutions import LaunchConfiguration
+from launch.actions import DeclareLaunchArgument, ExecuteProcess, TimerAction
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
 
-def generate_launch_description():
-    default_params = os.path.join(get_package_share_directory("online_em_slam"), "config",
-                                  "online_em_slam.yaml")
-    use_sim_time = LaunchConfiguration("use_sim_time")
-    params_file = LaunchConfiguration("params_file")
-    namespace = LaunchConfiguration("namespace")
-    log_level = LaunchConfiguration("log_level")
-
-    return LaunchDescription([
+def _arguments(share):
+    return [
         DeclareLaunchArgument("use_sim_time", default_value="false",
                               description="Use the /clock topic (bag replay, simulation)."),
-        DeclareLaunchArgument("params_file", default_value=default_params,
+        DeclareLaunchArgument("params_file", default_value=os.path.join(share, "config", "online_em_slam.yaml"),
                               description="Parameter YAML (/** + ros__parameters)."),
         DeclareLaunchArgument("namespace", default_value="", description="Node namespace."),
         DeclareLaunchArgument("log_level", default_value="info", description="Logging level."),
-        Node(
-            package="online_em_slam",
-            executable="online_em_slam_node",
-            name="online_em_slam",
-            namespace=namespace,
-            output="screen",
-            emulate_tty=True,
-            parameters=[params_file, {"use_sim_time": ParameterValue(use_sim_time, value_type=bool)}],
-            arguments=["--ros-args", "--log-level", log_level],
-        ),
-    ])
+        DeclareLaunchArgument("rviz", default_value="false", description="Start RViz with rviz_config."),
+        DeclareLaunchArgument("rviz_config", default_value=os.path.join(share, "rviz", "online_em_slam.rviz"),
+                              description="RViz configuration."),
+        DeclareLaunchArgument("bag", default_value="",
+                              description="Bag to play with `ros2 bag play --clock` (empty: none)."),
+        DeclareLaunchArgument("bag_rate", default_value="1.0", description="Playback rate of the bag."),
+        DeclareLaunchArgument("bag_delay", default_value="3.0",
+                              description="Seconds before the bag starts (node and RViz subscribe first)."),
+    ]
+
+
+def generate_launch_description():
+    share = get_package_share_directory("online_em_slam")
+    bag = LaunchConfiguration("bag")
+    has_bag = PythonExpression(["'", bag, "' != ''"])
+    # A bag brings its own clock: sim time on whenever one is played.
+    sim_time = ParameterValue(
+        PythonExpression(["'", LaunchConfiguration("use_sim_time"), "'.lower() == 'true' or ", has_bag]),
+        value_type=bool)
+    slam = Node(
+        package="online_em_slam", executable="online_em_slam_node", name="online_em_slam",
+        namespace=LaunchConfiguration("namespace"), output="screen", emulate_tty=True,
+        parameters=[LaunchConfiguration("params_file"), {"use_sim_time": sim_time}],
+        arguments=["--ros-args", "--log-level", LaunchConfiguration("log_level")])
+    rviz = Node(
+        package="rviz2", executable="rviz2", name="rviz2", output="log",
+        arguments=["-d", LaunchConfiguration("rviz_config")], parameters=[{"use_sim_time": sim_time}],
+        condition=IfCondition(LaunchConfiguration("rviz")))
+    play = TimerAction(period=LaunchConfiguration("bag_delay"), actions=[ExecuteProcess(
+        cmd=["ros2", "bag", "play", bag, "--clock", "--rate", LaunchConfiguration("bag_rate")],
+        output="screen", condition=IfCondition(has_bag))])
+    return LaunchDescription(_arguments(share) + [slam, rviz, play])

@@ -1,0 +1,72 @@
+"""RViz configuration, launch file and installed data files (no rviz2 / launch needed)."""
+from __future__ import annotations
+
+import ast
+import os
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parent.parent
+RVIZ = ROOT / "rviz" / "online_em_slam.rviz"
+LATCHED = {"/online_em_slam/pose", "/online_em_slam/path", "/online_em_slam/landmarks",
+           "/online_em_slam/landmark_markers", "/ground_truth/landmarks"}
+
+
+def _displays():
+    return yaml.safe_load(RVIZ.read_text())["Visualization Manager"]["Displays"]
+
+
+def test_rviz_config_shows_every_output_in_the_map_frame():
+    config = yaml.safe_load(RVIZ.read_text())
+    assert config["Visualization Manager"]["Global Options"]["Fixed Frame"] == "map"
+    by_topic = {d["Topic"]["Value"]: d for d in _displays() if "Topic" in d}
+    classes = {t: d["Class"].split("/")[-1] for t, d in by_topic.items()}
+    assert classes == {
+        "/online_em_slam/pose": "PoseWithCovariance", "/online_em_slam/path": "Path",
+        "/online_em_slam/particles": "PoseArray", "/online_em_slam/landmarks": "PointCloud2",
+        "/online_em_slam/landmark_markers": "MarkerArray", "/landmark_observations": "PointCloud2",
+        "/scan": "LaserScan", "/ground_truth/landmarks": "PointCloud2", "/ground_truth/position": "PointStamped"}
+    assert any(d["Class"] == "rviz_default_plugins/TF" for d in _displays())
+    for topic, display in by_topic.items():
+        durability = display["Topic"]["Durability Policy"]
+        assert durability == ("Transient Local" if topic in LATCHED else "Volatile"), topic
+    assert by_topic["/online_em_slam/landmarks"]["Size (m)"] >= 0.5
+    for d in by_topic.values():                # clouds and scans are drawn where TF puts them
+        if d["Class"].endswith(("PointCloud2", "LaserScan")):
+            assert d["Use Fixed Frame"] is True and d["Size (m)"] > 0
+
+
+def test_node_latches_what_rviz_expects():
+    """The node's latched publishers are the ones the RViz file subscribes Transient Local."""
+    source = (ROOT / "online_em_slam" / "ros" / "node.py").read_text()
+    latched = {call.args[1].value.lstrip("~/") for call in ast.walk(ast.parse(source))
+               if isinstance(call, ast.Call) and getattr(call.func, "attr", "") == "create_publisher"
+               and len(call.args) == 3 and isinstance(call.args[1], ast.Constant)
+               and "latched" in ast.unparse(call.args[2])}
+    assert {f"/online_em_slam/{t}" for t in latched} == LATCHED - {"/ground_truth/landmarks"}
+
+
+def test_launch_file_starts_node_rviz_and_bag_play():
+    text = (ROOT / "launch" / "online_em_slam.launch.py").read_text()
+    tree = ast.parse(text)
+    assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description" for n in tree.body)
+    for needle in ('"rviz2"', '"online_em_slam_node"', '"bag", "play"', '"--clock"', '"online_em_slam.rviz"'):
+        assert needle in text, needle
+
+
+def test_setup_installs_launch_rviz_config_and_console_tools():
+    from setuptools import distutils  # noqa: F401  (setuptools' bundled distutils)
+    from distutils.core import run_setup
+    cwd = os.getcwd()
+    try:
+        os.chdir(ROOT)
+        dist = run_setup("setup.py", stop_after="init")
+    finally:
+        os.chdir(cwd)
+    files = {target: set(sources) for target, sources in dist.data_files}
+    assert "rviz/online_em_slam.rviz" in files["share/online_em_slam/rviz"]
+    assert "launch/online_em_slam.launch.py" in files["share/online_em_slam/launch"]
+    scripts = {s.split("=")[0].strip() for s in dist.entry_points["console_scripts"]}
+    assert {"online-em-slam-record", "online-em-slam-topic", "online-em-slam", "online-em-slam-replay",
+            "online-em-slam-convert"} <= scripts
