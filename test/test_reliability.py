@@ -59,3 +59,128 @@ def test_every_accepted_initial_pose_std_survives_a_reset():
     slam.reset(initial_pose=(1.0, 2.0, 0.3))
     assert np.all(np.isfinite(slam.particles()[0]))
     SlamConfig().validate()
+
+
+# ----------------------------------------------------------------- observation clouds
+def make_cloud(columns: dict, layout) -> "PointCloud2":
+    from sensor_msgs.msg import PointCloud2, PointField
+    from online_em_slam.cloud import encode
+    specs, step, data = encode(columns, layout)
+    n = len(data) // step
+    msg = PointCloud2(height=1, width=n, point_step=step, row_step=step * n, is_bigendian=False,
+                      fields=[PointField(name=f.name, offset=f.offset, datatype=f.datatype, count=1) for f in specs])
+    msg.data = data
+    return msg
+
+
+def test_uint8_range_field_is_refused_as_malformed():
+    from online_em_slam.ros import conversions as conv
+    cloud = make_cloud({"range": np.array([5, 6]), "bearing": np.array([0.0, 0.1])}, (("range", "u1"), ("bearing", "f4")))
+    with pytest.raises(conv.CloudFormatError, match="'range' has integer type uint8"):
+        conv.observations_from_cloud(cloud)
+
+
+@pytest.mark.parametrize("id_type, good_ids, bad_ids", [
+    ("f4", [3, -1, 2 ** 24], [np.nan, 1e20, 2.5, -7.0, 2 ** 31 - 1]),   # float32(2^31 - 1) is 2^31
+    ("f8", [3, -1, 2 ** 31 - 1], [np.inf, 2.0 ** 31, 3e9, -2.0]),
+    ("u4", [3, 7], [2 ** 31, 2 ** 32 - 1]), ("i2", [3, -1], [-5])])
+def test_invalid_ids_are_dropped_and_counted_not_treated_as_unknown(id_type, good_ids, bad_ids):
+    from collections import Counter
+    from online_em_slam.ros import conversions as conv
+    ids = np.array(good_ids + bad_ids, dtype=float)
+    n = len(ids)
+    cloud = make_cloud({"range": np.full(n, 5.0), "bearing": np.zeros(n), "id": ids},
+                       (("range", "f4"), ("bearing", "f4"), ("id", id_type)))
+    drops = Counter()
+    obs = conv.observations_from_cloud(cloud, drops=drops)
+    assert obs.ids.tolist() == good_ids
+    assert drops == {"invalid_id": len(bad_ids)}
+
+
+def test_zero_ranges_and_huge_bearings_are_dropped_and_counted_bearings_wrapped():
+    from collections import Counter
+    from std_msgs.msg import Header
+    from online_em_slam.ros import conversions as conv
+    ranges = [0.0, 5.0, 5.0, 5.0, 5.0, -1.0, np.nan]
+    bearings = [0.1, 1e20, -50.0, 1.5 * np.pi, -0.2, 0.0, 0.0]
+    drops = Counter()
+    obs = conv.observations_from_cloud(conv.observations_to_cloud(Header(), ranges, bearings), drops=drops)
+    assert drops == {"zero_range": 1, "bearing_out_of_range": 2}
+    # Negative and non-finite ranges go on to the core, which drops and counts them.
+    assert obs.ranges.tolist()[:2] == [5.0, 5.0] and len(obs) == 4
+    np.testing.assert_allclose(obs.bearings[:2], [-0.5 * np.pi, -0.2], atol=1e-6)
+
+
+def test_landmark_ids_beyond_int32_are_not_published_wrapped():
+    from std_msgs.msg import Header
+    from online_em_slam.cloud import decode_message
+    from online_em_slam.core.types import LandmarkMap
+    from online_em_slam.ros import conversions as conv
+    ids = np.array([5, 2 ** 31 + 5, 2 ** 31 - 1, 2 ** 32 + 5])
+    landmarks = LandmarkMap(ids, np.arange(8.0).reshape(4, 2), np.tile(np.eye(2), (4, 1, 1)),
+                            np.ones(4, dtype=int), np.ones(4, dtype=bool))
+    cloud, skipped = conv.landmarks_to_cloud(Header(frame_id="map"), landmarks)
+    assert decode_message(cloud)["id"].tolist() == [5, 2 ** 31 - 1]
+    assert skipped == {"landmark_id_out_of_range": 2}
+    markers = conv.landmarks_to_markers(Header(frame_id="map"), landmarks).markers[1:]
+    marker_ids = sorted({m.id for m in markers})
+    assert marker_ids == [5, 2 ** 31 - 1] and all(m.id >= 0 for m in markers)
+
+
+# ----------------------------------------------------------------- defect 10: odometry quaternions
+def test_odometry_quaternions_normalised_degenerate_ones_rejected():
+    from geometry_msgs.msg import Quaternion
+    from online_em_slam.ros import conversions as conv
+    q = conv.yaw_to_quaternion(1.2)
+    assert conv.odometry_yaw(q) == (pytest.approx(1.2), None)
+    scaled = Quaternion(x=3 * q.x, y=3 * q.y, z=3 * q.z, w=3 * q.w)
+    assert conv.odometry_yaw(scaled) == (pytest.approx(1.2), "unnormalised_quaternion")
+    huge = Quaternion(x=0.0, y=0.0, z=1e300 * q.z, w=1e300 * q.w)
+    assert conv.odometry_yaw(huge) == (pytest.approx(1.2), "unnormalised_quaternion")
+    tiny = Quaternion(x=0.0, y=0.0, z=1e-3 * q.z, w=1e-3 * q.w)
+    assert conv.odometry_yaw(tiny) == (pytest.approx(1.2), "unnormalised_quaternion")
+    for degenerate in (Quaternion(x=0.0, y=0.0, z=0.0, w=0.0), Quaternion(x=0.0, y=0.0, z=1e-12, w=0.0),
+                       Quaternion(x=0.0, y=math.sqrt(0.5), z=0.0, w=math.sqrt(0.5))):     # pitch 90 deg
+        yaw, problem = conv.odometry_yaw(degenerate)
+        assert math.isnan(yaw) and problem == "degenerate_quaternion"
+    yaw, problem = conv.odometry_yaw(Quaternion(x=0.0, y=0.0, z=math.nan, w=1.0))
+    assert math.isnan(yaw) and problem is None                 # the node's non-finite check
+
+
+# ----------------------------------------------------------------- defect 9: path publishing cost
+def test_path_history_is_bounded_stable_and_keeps_the_newest_pose():
+    from std_msgs.msg import Header
+    from online_em_slam.ros.path_history import PathHistory
+    path = PathHistory(maxlen=10_000, max_poses=100)
+    for k in range(25_000):
+        path.append(1000.0 + 0.1 * k, (k, 0.0, 0.0))
+    assert len(path) == 10_000 and path._rows.nbytes <= 10_000 * 32
+    msg = path.to_msg(Header(frame_id="map"))
+    assert 50 <= len(msg.poses) <= 100
+    xs = [p.pose.position.x for p in msg.poses]
+    assert xs[-1] == 24_999 and xs[0] >= 15_000 and xs == sorted(xs)
+    # Incremental: the next publish reuses the PoseStamped objects it built.
+    path.append(1000.0 + 0.1 * 25_000, (25_000, 0.0, 0.0))
+    again = path.to_msg(Header(frame_id="map"))
+    reused = {id(p) for p in msg.poses} & {id(p) for p in again.poses}
+    assert len(reused) >= len(again.poses) - 2
+    assert not path.append(1000.0 + 0.1 * 25_000, (1.0, 0.0, 0.0))          # repeated stamp
+    assert not path.append(5000.0, (math.nan, 0.0, 0.0))
+    path.resize(10)
+    assert len(path) == 10 and path.to_msg(Header()).poses[-1].pose.position.x == 25_000
+    path.resize(0)
+    assert not path.append(6000.0, (0.0, 0.0, 0.0)) and len(path.to_msg(Header()).poses) == 0
+
+
+def test_path_max_length_range_is_what_the_node_can_serve():
+    with pytest.raises(ParameterError, match="path_max_length"):
+        build({"path_max_length": 10_000_000})
+    with pytest.raises(ParameterError, match="path_publish_max_poses"):
+        build({"path_publish_max_poses": 1_000_000})
+
+
+# ----------------------------------------------------------------- defect 8: map paths
+def test_map_file_is_read_only_and_confined_in_the_parameter_table():
+    from online_em_slam.ros.params import NODE_SPECS
+    specs = {spec.name: spec for spec in NODE_SPECS}
+    assert specs["map_file"].read_only and specs["map_directory"].read_only

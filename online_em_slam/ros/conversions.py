@@ -19,7 +19,7 @@ from ..cloud import LANDMARK_FIELDS, OBSERVATION_FIELDS, CloudFormatError, decod
 from ..core.angles import wrap_angle
 from ..core.types import LandmarkMap, Observations, PoseEstimate
 
-__all__ = ["CloudFormatError", "stamp_to_sec", "sec_to_stamp", "yaw_to_quaternion", "quaternion_to_yaw",
+__all__ = ["CloudFormatError", "stamp_to_sec", "sec_to_stamp", "yaw_to_quaternion", "quaternion_to_yaw", "odometry_yaw",
            "observations_from_cloud", "observations_to_cloud", "landmarks_to_cloud", "landmarks_to_markers",
            "pose_to_msg", "particles_to_msg", "pose2d_compose", "pose2d_inverse", "transform_msg",
            "COVARIANCE_INDEX"]
@@ -44,9 +44,52 @@ def yaw_to_quaternion(yaw: float) -> Quaternion:
     return Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half))
 
 
+# |q|^2 may differ from 1 by this much before a quaternion counts as unnormalised
+# (tf2's QUATERNION_NORMALIZATION_TOLERANCE); float32 round-off is far below it.
+QUATERNION_TOLERANCE = 1e-2
+# Below this norm, or when the yaw is undefined (pitch +-90 degrees), a quaternion is degenerate.
+DEGENERATE_QUATERNION = 1e-6
+
+
+def _yaw_terms(q) -> tuple[float, float, float]:
+    """Scale-invariant yaw terms (sin part, cos part) and |q|, overflow-free.
+
+    Dividing by the largest component first keeps 1e300 components finite, and
+    using w^2 + x^2 - y^2 - z^2 instead of 1 - 2 (y^2 + z^2) makes the yaw that of
+    the normalised quaternion whatever the scale.
+    """
+    v = np.array([q.x, q.y, q.z, q.w], dtype=float)
+    scale = float(np.max(np.abs(v))) if np.all(np.isfinite(v)) else math.nan
+    if not scale > 0.0:
+        return math.nan if math.isnan(scale) else 0.0, 0.0, scale
+    x, y, z, w = v / scale
+    norm = scale * math.sqrt(x * x + y * y + z * z + w * w)
+    return 2.0 * (w * z + x * y), w * w + x * x - y * y - z * z, norm
+
+
 def quaternion_to_yaw(q) -> float:
-    """Yaw (rotation about z) of a quaternion; the roll/pitch parts are ignored."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    """Yaw (rotation about z) of a quaternion of any non-zero scale; the roll/pitch parts are ignored."""
+    sin_part, cos_part, _ = _yaw_terms(q)
+    return math.atan2(sin_part, cos_part)
+
+
+def odometry_yaw(q) -> tuple[float, str | None]:
+    """Yaw of an odometry orientation and what was wrong with the quaternion.
+
+    Returns (yaw, None) for a unit quaternion, (yaw of the normalised
+    quaternion, "unnormalised_quaternion") when |q|^2 is off by more than
+    QUATERNION_TOLERANCE, (nan, "degenerate_quaternion") when no yaw is defined
+    (zero or tiny norm, pitch +-90 degrees), and (nan, None) for non-finite
+    components (the caller's non-finite check handles those).
+    """
+    sin_part, cos_part, norm = _yaw_terms(q)
+    if math.isnan(norm):
+        return math.nan, None
+    scaled_norm = math.hypot(sin_part, cos_part)
+    if norm < DEGENERATE_QUATERNION or scaled_norm < DEGENERATE_QUATERNION:
+        return math.nan, "degenerate_quaternion"
+    problem = "unnormalised_quaternion" if abs(norm * norm - 1.0) > QUATERNION_TOLERANCE else None
+    return math.atan2(sin_part, cos_part), problem
 
 
 def _finite(*values) -> bool:
@@ -54,24 +97,73 @@ def _finite(*values) -> bool:
 
 
 # ----------------------------------------------------------------- observations
-def observations_from_cloud(msg: PointCloud2) -> Observations:
+FLOAT_FIELDS = ("range", "bearing", "range_std", "bearing_std")
+MAX_ID = 2 ** 31 - 1          # ids are published as int32 (map cloud, Marker.id)
+# Bearings beyond one extra turn are not a sensor's angle convention ([0, 2 pi) or
+# (-pi, pi]) but garbage; wrapping 1e20 rad would give an arbitrary direction.
+MAX_ABS_BEARING = 2.0 * math.pi
+
+
+def _float_column(columns: dict, name: str) -> np.ndarray | None:
+    """A measurement column; integer types are refused: a UINT8 ``range`` is not metres."""
+    if name not in columns:
+        return None
+    column = columns[name]
+    if column.dtype.kind != "f":
+        raise CloudFormatError(f"field {name!r} has integer type {column.dtype}; "
+                               f"{', '.join(FLOAT_FIELDS)} must be FLOAT32 or FLOAT64")
+    return column.astype(float)
+
+
+def _ids_column(columns: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """ids as int64 and a mask of valid ones: -1 (unknown) or an integer in [0, MAX_ID].
+
+    A float id field holding NaN, 1e20 or 2.5, an id >= 2^31 (it would be published
+    negative and collide with another marker) or below -1 is invalid, not unknown:
+    associating such an observation by likelihood would hide a broken publisher.
+    """
+    if "id" not in columns:
+        return np.full(n, -1, dtype=np.int64), np.ones(n, dtype=bool)
+    raw = columns["id"]
+    if raw.dtype.kind not in "iuf":
+        raise CloudFormatError(f"field 'id' has type {raw.dtype}")
+    values = raw.astype(float) if raw.dtype.kind == "f" else raw.astype(np.int64).astype(float)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(values) & (values == np.round(values)) & (values >= -1) & (values <= MAX_ID)
+    ids = np.where(valid, values, -1).astype(np.int64)
+    return ids, valid
+
+
+def _count(drops, reason: str, mask: np.ndarray) -> None:
+    if drops is not None and mask.any():
+        drops[reason] += int(mask.sum())
+
+
+def observations_from_cloud(msg: PointCloud2, drops=None) -> Observations:
     """Observations from a PointCloud2 with fields range, bearing [, id, range_std, bearing_std].
 
-    Raises CloudFormatError for missing fields or inconsistent sizes.  Values
-    are passed on as they are (the core drops and counts non-finite and
-    negative ranges); bearings are wrapped to (-pi, pi].
+    Raises CloudFormatError for missing fields, inconsistent sizes or measurement
+    fields of integer type.  Observations with an invalid id (see _ids_column), a
+    zero range or a bearing beyond +-2 pi are left out and counted in ``drops``
+    (a Counter, by reason: invalid_id, zero_range, bearing_out_of_range).  Other
+    values are passed on (the core drops and counts non-finite and negative
+    ranges); bearings are wrapped to (-pi, pi].
     """
     columns = decode_message(msg, required=("range", "bearing"))
-    ranges = np.asarray(columns["range"], dtype=float)
-    bearings = np.asarray(columns["bearing"], dtype=float)
+    ranges, bearings = _float_column(columns, "range"), _float_column(columns, "bearing")
+    std = {name: _float_column(columns, name) for name in ("range_std", "bearing_std")}
+    ids, valid_id = _ids_column(columns, ranges.shape[0])
     finite = np.isfinite(bearings)
-    bearings = np.where(finite, wrap_angle(np.where(finite, bearings, 0.0)), bearings)
-    ids = columns.get("id")
-    ids = (np.full(ranges.shape, -1, dtype=np.int64) if ids is None
-           else np.asarray(ids).astype(np.int64, copy=False))
-    std = {name: (np.asarray(columns[name], dtype=float) if name in columns else None)
-           for name in ("range_std", "bearing_std")}
-    return Observations(ranges, bearings, ids, std["range_std"], std["bearing_std"])
+    with np.errstate(invalid="ignore"):
+        wild = finite & (np.abs(bearings) > MAX_ABS_BEARING)
+    zero = ranges == 0.0
+    _count(drops, "invalid_id", ~valid_id)
+    _count(drops, "zero_range", valid_id & zero)
+    _count(drops, "bearing_out_of_range", valid_id & ~zero & wild)
+    keep = valid_id & ~zero & ~wild
+    bearings = np.where(finite, wrap_angle(np.where(finite & keep, bearings, 0.0)), bearings)
+    observations = Observations(ranges, bearings, ids, std["range_std"], std["bearing_std"])
+    return observations if keep.all() else observations.subset(keep)
 
 
 def _point_fields(specs) -> list[PointField]:
@@ -104,21 +196,32 @@ def observations_to_cloud(header: Header, ranges, bearings, ids=None, range_std=
 
 
 # ----------------------------------------------------------------- landmark map
-def _finite_rows(landmarks: LandmarkMap) -> np.ndarray:
+def _publishable_rows(landmarks: LandmarkMap) -> tuple[np.ndarray, dict[str, int]]:
+    """Rows that can be published, and the others counted by reason.
+
+    Ids outside [0, 2^31 - 1] are left out rather than wrapped: the map cloud's id
+    field and Marker.id are int32, and a wrapped id would be negative or collide
+    with another landmark's.
+    """
     pos = np.asarray(landmarks.positions, dtype=float).reshape(-1, 2)
     cov = np.asarray(landmarks.covariances, dtype=float).reshape(-1, 2, 2)
-    return np.isfinite(pos).all(axis=1) & np.isfinite(cov).all(axis=(1, 2))
+    ids = np.asarray(landmarks.ids).reshape(-1)
+    finite = np.isfinite(pos).all(axis=1) & np.isfinite(cov).all(axis=(1, 2))
+    id_ok = (ids >= 0) & (ids <= MAX_ID)
+    skipped = {"non_finite_landmark": int((~finite).sum()),
+               "landmark_id_out_of_range": int((finite & ~id_ok).sum())}
+    return finite & id_ok, {k: v for k, v in skipped.items() if v}
 
 
-def landmarks_to_cloud(header: Header, landmarks: LandmarkMap) -> tuple[PointCloud2, int]:
-    """The map as PointCloud2 (LANDMARK_FIELDS) and the number of non-finite rows left out."""
-    keep = _finite_rows(landmarks)
+def landmarks_to_cloud(header: Header, landmarks: LandmarkMap) -> tuple[PointCloud2, dict[str, int]]:
+    """The map as PointCloud2 (LANDMARK_FIELDS) and the rows left out, counted by reason."""
+    keep, skipped = _publishable_rows(landmarks)
     pos = np.asarray(landmarks.positions, dtype=float).reshape(-1, 2)[keep]
     cov = np.asarray(landmarks.covariances, dtype=float).reshape(-1, 2, 2)[keep]
     columns = {"x": pos[:, 0], "y": pos[:, 1], "z": np.zeros(len(pos)),
                "id": np.asarray(landmarks.ids)[keep], "cov_xx": cov[:, 0, 0], "cov_xy": cov[:, 0, 1],
                "cov_yy": cov[:, 1, 1], "n_obs": np.asarray(landmarks.n_obs)[keep]}
-    return _cloud(header, columns, LANDMARK_FIELDS), int((~keep).sum())
+    return _cloud(header, columns, LANDMARK_FIELDS), skipped
 
 
 def ellipse_points(mean, cov, n_sigma: float, n_points: int = 24) -> np.ndarray | None:
@@ -142,14 +245,14 @@ def landmarks_to_markers(header: Header, landmarks: LandmarkMap, n_sigma: float 
     """
     array = MarkerArray()
     array.markers.append(Marker(header=header, action=Marker.DELETEALL))
-    keep = _finite_rows(landmarks)
+    keep, _ = _publishable_rows(landmarks)
     confirmed = np.asarray(landmarks.confirmed, dtype=bool).reshape(-1)
     for row in np.flatnonzero(keep):
         mean = landmarks.positions[row]
         points = ellipse_points(mean, landmarks.covariances[row], n_sigma)
         if points is None:
             continue
-        lid = int(landmarks.ids[row]) % 2 ** 31    # Marker.id is int32
+        lid = int(landmarks.ids[row])              # in int32 range: _publishable_rows
         color = (ColorRGBA(r=0.1, g=0.8, b=0.2, a=1.0) if confirmed[row]
                  else ColorRGBA(r=1.0, g=0.55, b=0.0, a=0.8))
         ellipse = Marker(header=header, ns=namespace + "/ellipses", id=lid, type=Marker.LINE_STRIP,

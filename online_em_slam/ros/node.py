@@ -46,7 +46,9 @@ from visualization_msgs.msg import MarkerArray
 
 from ..core.angles import wrap_angle
 from ..core.slam import OnlineEMSlam
+from ..core.mapfile import confined_path
 from . import conversions as conv
+from .path_history import PathHistory
 from .params import ParameterError, build, current_values, declare_parameters
 
 ODOM, OBSERVATIONS, CONTROL = 0, 1, 2      # processing order of inputs with equal stamps
@@ -121,7 +123,8 @@ class OnlineEmSlamNode(Node):
         self._odom_history: deque = deque(maxlen=400)
         self._map_to_odom: np.ndarray | None = None
         self._last_tf_ns = -1
-        self._path: deque = deque(maxlen=max(s.path_max_length, 1))
+        self._path = PathHistory(s.path_max_length, s.path_publish_max_poses)
+        self._corrected: Counter = Counter()       # inputs used after a repair (normalised quaternions)
         self._map_dirty = True
 
         # Statistics.
@@ -244,13 +247,22 @@ class OnlineEmSlamNode(Node):
     def _on_odom(self, msg: Odometry) -> None:
         received = time.monotonic()
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
-        pose = np.array([p.x, p.y, conv.quaternion_to_yaw(q)], dtype=float)
+        yaw, quaternion_problem = conv.odometry_yaw(q)
+        pose = np.array([p.x, p.y, yaw], dtype=float)
         with self._lock:
+            if quaternion_problem == "degenerate_quaternion":
+                self._drop(quaternion_problem)
+                self.get_logger().warning("dropped odometry with a degenerate (zero or yaw-less) orientation "
+                                          f"quaternion ({q.x}, {q.y}, {q.z}, {q.w})",
+                                          throttle_duration_sec=self._settings.warn_throttle_period)
+                return
             if not np.all(np.isfinite(pose)) or not np.isfinite([q.x, q.y, q.z, q.w]).all():
                 self._drop("non_finite_odometry")
                 self.get_logger().warning("dropped odometry with non-finite pose",
                                           throttle_duration_sec=self._settings.warn_throttle_period)
                 return
+            if quaternion_problem:                   # used after normalisation: counted, not dropped
+                self._corrected[quaternion_problem] += 1
             self._enqueue(conv.stamp_to_sec(msg.header.stamp), ODOM, pose, received)
 
     def _on_control(self, msg: TwistStamped) -> None:
@@ -271,7 +283,8 @@ class OnlineEmSlamNode(Node):
         received = time.monotonic()
         with self._lock:
             try:
-                observations = conv.observations_from_cloud(msg)
+                # Observations with invalid ids, zero ranges or wild bearings are left out and counted.
+                observations = conv.observations_from_cloud(msg, drops=self._drops)
             except ValueError as error:      # CloudFormatError is a ValueError
                 self._drop("malformed_cloud")
                 self.get_logger().warning(f"dropped malformed observation cloud: {error}",
@@ -414,10 +427,7 @@ class OnlineEmSlamNode(Node):
                                     throttle_duration_sec=self._settings.warn_throttle_period)
             return
         self._pose_pub.publish(msg)
-        if self._settings.path_max_length > 0:
-            ps = conv.pose_stamped(header, estimate.mean)
-            if ps is not None and (not self._path or self._path[-1].header.stamp != ps.header.stamp):
-                self._path.append(ps)
+        self._path.append(stamp, estimate.mean)      # compact; messages are built at publish time
         odom_pose = self._odom_at(stamp)
         if odom_pose is None and self._settings.publish_tf:
             self.get_logger().warning(
@@ -482,12 +492,12 @@ class OnlineEmSlamNode(Node):
             header = self._header(self._slam.last_stamp, s.map_frame)
             landmarks = self._slam.landmarks()
             cloud, skipped = conv.landmarks_to_cloud(header, landmarks)
-            if skipped:
-                self._drop("non_finite_landmark", skipped)
+            for reason, count in skipped.items():
+                self._drop(reason, count)
             self._landmarks_pub.publish(cloud)
             self._markers_pub.publish(conv.landmarks_to_markers(header, landmarks, s.marker_sigma))
             if s.path_max_length > 0:
-                self._path_pub.publish(Path(header=header, poses=list(self._path)))
+                self._path_pub.publish(self._path.to_msg(header))    # at most path_publish_max_poses
 
     def _publish_diagnostics(self) -> None:
         with self._lock:
@@ -515,6 +525,7 @@ class OnlineEmSlamNode(Node):
                 "dropped_total": total,
             }
             values.update({f"dropped.{reason}": count for reason, count in sorted(drops.items())})
+            values.update({f"corrected.{reason}": count for reason, count in sorted(self._corrected.items())})
             level, message = DiagnosticStatus.OK, f"{len(landmarks)} landmarks"
             if self._paused:
                 level, message = DiagnosticStatus.WARN, "paused"
@@ -583,7 +594,7 @@ class OnlineEmSlamNode(Node):
             self._odom_history.clear()
             self._map_to_odom = None
             self._last_tf_ns = -1
-            self._path = deque(maxlen=max(s.path_max_length, 1))
+            self._path.clear()
             self._map_dirty = True
             self._last_ess = float("nan")
             self._resets += 1
@@ -604,34 +615,41 @@ class OnlineEmSlamNode(Node):
         self.get_logger().info(response.message)
         return response
 
+    def _map_directory(self) -> str:
+        s = self._settings
+        directory = s.map_directory.strip() or os.path.dirname(os.path.expanduser(s.map_file.strip()))
+        return os.path.abspath(os.path.expanduser(directory or "."))
+
     def _map_path(self) -> str:
-        path = self._settings.map_file.strip()
-        return os.path.abspath(os.path.expanduser(path)) if path else ""
+        """map_file resolved inside map_directory (MapFileError if it escapes: '..', symlinks)."""
+        return confined_path(self._settings.map_file, self._map_directory())
 
     def _srv_save_map(self, request, response):
-        path = self._map_path()
         with self._lock:
-            if not path:
-                response.success, response.message = False, "parameter map_file is empty"
-                return response
             try:
-                self._slam.save_map(path)    # temporary file + os.replace inside the core
+                path = self._map_path()
+                # Only the configured directory (never its parents) and directories inside
+                # it are created; the path is resolved again once they exist.
+                root = os.path.realpath(self._map_directory())
+                if not os.path.isdir(root):
+                    os.mkdir(root)
+                os.makedirs(os.path.dirname(path), exist_ok=True)
+                path = self._map_path()
+                self._slam.save_map(path)    # validated, fsynced temporary file + rename (core/mapfile.py)
                 response.success = True
                 response.message = f"saved {len(self._slam.landmarks())} landmarks to {path}"
-            except Exception as error:  # noqa: BLE001
-                response.success, response.message = False, f"could not save map to {path}: {error}"
+            except Exception as error:  # noqa: BLE001 - a failed save must never stop the node
+                response.success, response.message = False, f"could not save map: {error}"
         self._log_result(response.success, response.message)
         return response
 
     def _load_map(self) -> tuple[bool, str]:
-        path = self._map_path()
         with self._lock:
-            if not path:
-                return False, "parameter map_file is empty"
             try:
-                self._slam.load_map(path)
+                path = self._map_path()
+                self._slam.load_map(path)    # validated completely first; unchanged on failure
             except Exception as error:  # noqa: BLE001
-                return False, f"could not load map from {path}: {error}"
+                return False, f"could not load map: {error}"
             self._map_dirty = True
             self._path.clear()
         self._publish_map()
@@ -659,8 +677,7 @@ class OnlineEmSlamNode(Node):
             self.get_logger().error(f"parameters not applied: {error}")
             return
         with self._lock:
-            if settings.path_max_length != self._settings.path_max_length:
-                self._path = deque(self._path, maxlen=max(settings.path_max_length, 1))
+            self._path.resize(settings.path_max_length, settings.path_publish_max_poses)
             self._settings = settings
             if config != self._slam.config:
                 self._pending_config = config

@@ -94,7 +94,8 @@ _CORE = {
     "filter.smoother": ("Sufficient-statistics smoother: forward, paris or ancestry.", None),
     "filter.paris_draws": ("PaRIS backward draws per particle.", (1, 100)),
     "filter.seed": ("Random seed; -1 draws a fresh seed.", (-1, INT32_MAX)),
-    "filter.initial_pose_std": ("Std of the initial particle cloud (x m, y m, yaw rad).", None),
+    "filter.initial_pose_std": ("Std of the initial particle cloud: exactly 3 values (x m, y m, yaw rad).",
+                                None),
     "em.algorithm": ("online (stochastic approximation), block or block_averaged (Block Online EM).", None),
     "em.step_size_exponent": ("Online EM step size gamma_n = n^-exponent, in (0.5, 1].", (0.5, 1.0)),
     "em.min_updates_before_mstep": ("EM updates of a landmark before its M-step.", (1, 1000)),
@@ -145,7 +146,10 @@ NODE_SPECS = (
     ParamSpec("map_publish_period", 1.0, "Landmark map, markers and path publish period (s, > 0).",
               0.001, 3600.0, read_only=True),
     ParamSpec("diagnostics_period", 1.0, "Period of /diagnostics (s, > 0).", 0.01, 3600.0, read_only=True),
-    ParamSpec("path_max_length", 10000, "Poses kept in ~/path (0: no path).", 0, 10000000),
+    ParamSpec("path_max_length", 10000, "Poses kept for ~/path (0: no path); 32 bytes each.", 0, 1000000),
+    ParamSpec("path_publish_max_poses", 1000, "~/path holds at most this many of the kept poses (evenly "
+              "spaced, always the newest): bounds the cost of a publish (about 20 ms per 1000 poses).",
+              2, 20000),
     ParamSpec("publish_particles", True, "Publish ~/particles after each observation update."),
     ParamSpec("motion_source", "odom", "Motion input: odom (nav_msgs/Odometry, odometry model) or "
               "control (geometry_msgs/TwistStamped).", choices=MOTION_SOURCES, read_only=True),
@@ -168,7 +172,13 @@ NODE_SPECS = (
     ParamSpec("reset_on_time_jump", True, "Reset when the clock or the input stamps jump back."),
     ParamSpec("time_jump_threshold", 1.0, "A backward jump of more than this (s) resets; smaller "
               "backward steps are dropped as out_of_order.", 0.01, 1e6, read_only=True),
-    ParamSpec("map_file", "~/.ros/online_em_slam_map.npz", "File of ~/save_map and ~/load_map."),
+    ParamSpec("map_file", "~/.ros/online_em_slam_map.npz", "File of ~/save_map and ~/load_map; relative to "
+              "map_directory, and must lie inside it ('..' and symlinks out of it are refused). Read-only "
+              "at run time: any DDS participant could otherwise make ~/save_map overwrite files.",
+              read_only=True),
+    ParamSpec("map_directory", "", "Directory ~/save_map and ~/load_map are confined to (created by "
+              "~/save_map if missing; nothing outside it is). Empty: the directory of map_file.",
+              read_only=True),
     ParamSpec("load_map_on_start", False, "Load map_file at start-up."),
     ParamSpec("initial_pose.x", 0.0, "Initial pose x in the map frame (m).", -1e7, 1e7),
     ParamSpec("initial_pose.y", 0.0, "Initial pose y in the map frame (m).", -1e7, 1e7),
@@ -191,6 +201,7 @@ class NodeSettings:
     map_publish_period: float = 1.0
     diagnostics_period: float = 1.0
     path_max_length: int = 10000
+    path_publish_max_poses: int = 1000
     publish_particles: bool = True
     motion_source: str = "odom"
     control_angular: str = "steering"
@@ -203,6 +214,7 @@ class NodeSettings:
     reset_on_time_jump: bool = True
     time_jump_threshold: float = 1.0
     map_file: str = ""
+    map_directory: str = ""
     load_map_on_start: bool = False
     initial_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
     warn_throttle_period: float = 5.0
@@ -344,6 +356,7 @@ def build(values: dict[str, Any]) -> tuple[SlamConfig, NodeSettings]:
         map_publish_period=float(merged["map_publish_period"]),
         diagnostics_period=float(merged["diagnostics_period"]),
         path_max_length=int(merged["path_max_length"]),
+        path_publish_max_poses=int(merged["path_publish_max_poses"]),
         publish_particles=bool(merged["publish_particles"]),
         motion_source=str(merged["motion_source"]), control_angular=str(merged["control_angular"]),
         odom_topic=str(merged["odom_topic"]), control_topic=str(merged["control_topic"]),
@@ -351,6 +364,7 @@ def build(values: dict[str, Any]) -> tuple[SlamConfig, NodeSettings]:
         input_reliability=str(merged["input_qos.reliability"]), input_depth=int(merged["input_qos.depth"]),
         input_delay=float(merged["input_delay"]), reset_on_time_jump=bool(merged["reset_on_time_jump"]),
         time_jump_threshold=float(merged["time_jump_threshold"]), map_file=str(merged["map_file"]),
+        map_directory=str(merged["map_directory"]),
         load_map_on_start=bool(merged["load_map_on_start"]),
         initial_pose=(float(merged["initial_pose.x"]), float(merged["initial_pose.y"]),
                       float(merged["initial_pose.yaw"])),
