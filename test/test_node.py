@@ -198,6 +198,7 @@ def scenario(n_steps=300):
 # ----------------------------------------------------------------- tests
 def test_simulated_run_converges_late_subscriber_and_services(ros, tmp_path):
     steps, truth, landmarks, initial, model = scenario(300)
+    (tmp_path / "maps").mkdir()
     map_file = str(tmp_path / "maps" / "map.npz")
     node = ros.start(motion_source="control", control_angular="steering", input_delay=1.2,
                      **{"filter.num_particles": 50, "initial_pose.x": float(initial[0]),
@@ -342,13 +343,16 @@ def test_backward_time_jump_resets(ros):
     ros.odom(T0 - 100.0, 0.0, 0.0, 0.0)
     assert ros.spin_until(lambda: node.slam.last_stamp == T0 - 100.0, 3.0)
 
-    # Input stamps jumping back (without a clock jump) reset too; small steps back are dropped.
+    # Input stamps jumping back (without a clock jump) reset too once three inputs confirm
+    # the jump; small steps back are dropped.
     ros.odom(T0 - 99.0, 1.0, 0.0, 0.0)
     ros.odom(T0 - 99.5, 0.5, 0.0, 0.0)                  # 0.5 s back: out of order
     assert ros.spin_until(lambda: node.all_drops().get("out_of_order", 0) == 1, 3.0)
-    ros.odom(T0 - 200.0, 0.0, 0.0, 0.0)                 # 99 s back: reset
-    assert ros.spin_until(lambda: node.slam.last_stamp == T0 - 200.0, 3.0)
+    for k in range(3):
+        ros.odom(T0 - 200.0 + 0.1 * k, 0.1 * k, 0.0, 0.0)   # 99 s back, confirmed: reset
+    assert ros.spin_until(lambda: node.slam.last_stamp == pytest.approx(T0 - 199.8), 3.0)
     assert ros.spin_until(lambda: ros.diagnostics().get("resets") == "2", 3.0)
+    assert "stamp_outlier" not in node.all_drops()
 
 
 def test_bad_inputs_are_counted_and_outputs_stay_finite(ros):
@@ -387,9 +391,10 @@ def test_bad_inputs_are_counted_and_outputs_stay_finite(ros):
     assert ros.spin_until(lambda: node.all_drops().get("zero_time_step") == 1, 3.0)
     ros.odom(T0 + 0.1, 0.1, 0.0, 0.0)                                        # older than the last one
     assert ros.spin_until(lambda: node.all_drops().get("out_of_order") == 1, 3.0)
-    ros.odom(T0 + 30.4, 0.5, 0.0, 0.0)                                       # huge time step
-    assert ros.spin_until(lambda: node.slam.last_stamp == T0 + 30.4, 3.0)
-    ros.cloud(T0 + 30.4, [5.0, 6.0], [0.0, 0.5], [1, 2])
+    for k in range(3):                      # huge time step, taken once three inputs confirm it
+        ros.odom(T0 + 30.4 + 0.1 * k, 0.5, 0.0, 0.0)
+    assert ros.spin_until(lambda: node.slam.last_stamp == pytest.approx(T0 + 30.6), 3.0)
+    ros.cloud(T0 + 30.6, [5.0, 6.0], [0.0, 0.5], [1, 2])
     expected = {"malformed_cloud": 3, "empty_cloud": 1, "invalid_observation": 3, "non_finite_odometry": 2,
                 "zero_time_step": 1, "out_of_order": 1, "no_motion_input": 1}
     # /diagnostics reports every counter.
@@ -401,7 +406,7 @@ def test_bad_inputs_are_counted_and_outputs_stay_finite(ros):
     assert ros.diagnostics()["dropped_total"] == str(sum(drops.values()))
 
     # The node keeps publishing finite values.
-    assert ros.spin_until(lambda: any(conv.stamp_to_sec(m.header.stamp) == pytest.approx(T0 + 30.4)
+    assert ros.spin_until(lambda: any(conv.stamp_to_sec(m.header.stamp) == pytest.approx(T0 + 30.6)
                                       for m in ros.received["pose"]), 3.0)
     assert all(finite_pose(m) for m in ros.received["pose"])
     assert ros.spin_until(lambda: ros.received["landmarks"], 3.0)

@@ -12,15 +12,23 @@ Outputs
   map -> odom (tf2_ros, else tf2_msgs/TFMessage on /tf, else ~/map_to_odom) and
   /diagnostics.  Services ``~/reset`` ``~/pause`` ``~/save_map`` ``~/load_map``.
 
-Inputs go through a small buffer ordered by stamp (``input_delay``); every
-input that cannot be used is dropped and counted by reason (node counters
-merged with the core's ``drops``), with a throttled warning.  Outputs carry
-the input stamps and are checked finite before publishing.
+Inputs take the path shared with the offline runner (:mod:`online_em_slam.pipeline`):
+stamp checks (a lone bad stamp is dropped, a time jump needs confirmation), loss
+detection, the stamp-ordered merge of the streams (``input_delay``) and the
+feeder; so the node and ``online-em-slam run`` feed the estimator the identical
+sequence.  Every input that cannot be used is dropped and counted by reason
+(node counters merged with the path's and the core's), with a throttled
+warning.  When the node cannot keep up it sheds observation updates
+(``dropped.overload``), never motion.  ``~/pose`` follows the odometry: each
+odometry message gives the map-frame pose map->odom * odom->base at its stamp
+(what a TF user computes), so the pose keeps flowing while the merge waits for a
+slower stream; ``~/path`` is the estimator's pose after each observation message
+(the offline runner's trajectory.csv).  Outputs carry the input stamps and are
+checked finite before publishing.
 """
 from __future__ import annotations
 
 import bisect
-import heapq
 import math
 import os
 import threading
@@ -46,13 +54,22 @@ from visualization_msgs.msg import MarkerArray
 
 from ..core.angles import wrap_angle
 from ..core.slam import OnlineEMSlam
+from ..pipeline import CONTROL, KIND_NAME, OBSERVATIONS, ODOMETRY, Feeder, InputPath, LoadMonitor
 from ..core.mapfile import confined_path
 from . import conversions as conv
 from .path_history import PathHistory
 from .params import ParameterError, build, current_values, declare_parameters
 
-ODOM, OBSERVATIONS, CONTROL = 0, 1, 2      # processing order of inputs with equal stamps
-_KIND_NAME = {ODOM: "odometry", OBSERVATIONS: "observations", CONTROL: "control"}
+
+def input_qos(reliability: str, depth: int) -> QoSProfile:
+    """Sensor inputs: best_effort (the default) matches every publisher, as REP-2003 and
+    slam_toolbox do; reliable keeps every message (KEEP_ALL: a full queue makes a reliable
+    publisher wait instead of losing), for lossless bag replay."""
+    if reliability == "reliable":
+        return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
+    return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.VOLATILE)
 
 
 def latched_qos() -> QoSProfile:
@@ -105,23 +122,22 @@ class OnlineEmSlamNode(Node):
         self._pending_config = None
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
 
-        # Input buffer and time bookkeeping.
-        self._buffer: list = []
-        self._seq = 0
-        self._newest: float | None = None
-        self._newest_by_kind: dict[int, float] = {}
-        self._stream_wall: dict[int, float] = {}       # wall time of each input stream's last message
-        self._first_input_wall: float | None = None
-        self._last_processed: float | None = None
-        self._last_motion_stamp: dict[int, float] = {}
-        self._motion_seen = False
-        self._last_enqueue_wall = time.monotonic()
+        # Input path (shared with the offline runner) and time bookkeeping.
+        self._motion_kind = ODOMETRY if s.motion_source == "odom" else CONTROL
+        self._inputs_path = InputPath((self._motion_kind, OBSERVATIONS), s.input_delay, s.time_jump_threshold,
+                                      restart_on_jump_back=s.reset_on_time_jump)
+        self._feeder = Feeder(self._slam, s.motion_source, self._inputs_path.drops)
+        self._load = LoadMonitor()
+        self.max_load = 0.0
         self._pending_jump = False
         self._paused = False
 
         # Output state.
         self._odom_history: deque = deque(maxlen=400)
         self._map_to_odom: np.ndarray | None = None
+        self._pose_covariance: np.ndarray | None = None
+        self._pose_covariance_36 = None
+        self._last_pose_stamp = -math.inf
         self._last_tf_ns = -1
         self._path = PathHistory(s.path_max_length, s.path_publish_max_poses)
         self._corrected: Counter = Counter()       # inputs used after a repair (normalised quaternions)
@@ -149,18 +165,15 @@ class OnlineEmSlamNode(Node):
         self._tf = _TransformSender(self)
 
         # Subscriptions.
-        input_qos = QoSProfile(
-            depth=s.input_depth, history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE,
-            reliability=(ReliabilityPolicy.RELIABLE if s.input_reliability == "reliable"
-                         else ReliabilityPolicy.BEST_EFFORT))
-        self._odom_sub = self.create_subscription(Odometry, s.odom_topic, self._on_odom, input_qos,
+        qos = input_qos(s.input_reliability, s.input_depth)
+        self._odom_sub = self.create_subscription(Odometry, s.odom_topic, self._on_odom, qos,
                                                   event_callbacks=self._events(s.odom_topic))
         self._control_sub = None
         if s.motion_source == "control":
             self._control_sub = self.create_subscription(TwistStamped, s.control_topic, self._on_control,
-                                                         input_qos, event_callbacks=self._events(s.control_topic))
+                                                         qos, event_callbacks=self._events(s.control_topic))
         self._obs_sub = self.create_subscription(PointCloud2, s.observations_topic, self._on_observations,
-                                                 input_qos, event_callbacks=self._events(s.observations_topic))
+                                                 qos, event_callbacks=self._events(s.observations_topic))
 
         # Services.
         self.create_service(Trigger, "~/reset", self._srv_reset)
@@ -199,7 +212,7 @@ class OnlineEmSlamNode(Node):
         def incompatible(info) -> None:
             self.get_logger().error(
                 f"publisher on {topic!r} has an incompatible QoS (policy {info.last_policy_kind}); "
-                "for best-effort publishers set input_qos.reliability: best_effort",
+                "for best-effort publishers set input_qos.reliability: best_effort (the default)",
                 throttle_duration_sec=self._settings.warn_throttle_period)
 
         def lost(info) -> None:
@@ -226,6 +239,7 @@ class OnlineEmSlamNode(Node):
         """Node-level drop counters merged with the core's, by reason."""
         with self._lock:
             merged = Counter(self._drops)
+            merged.update(self._inputs_path.drops)
             merged.update(self._core_drops_carry)
             merged.update(self._slam.drops)
             return {k: int(v) for k, v in merged.items() if v}
@@ -244,173 +258,125 @@ class OnlineEmSlamNode(Node):
         return self._paused
 
     # ------------------------------------------------------------------ input callbacks
+    # Each callback decodes its message and hands it to the input path; every message
+    # with a readable stamp tells the path its stream is alive, used or not.
     def _on_odom(self, msg: Odometry) -> None:
-        received = time.monotonic()
+        started = time.monotonic()
+        stamp = conv.stamp_to_sec(msg.header.stamp)
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
         yaw, quaternion_problem = conv.odometry_yaw(q)
         pose = np.array([p.x, p.y, yaw], dtype=float)
         with self._lock:
             if quaternion_problem == "degenerate_quaternion":
-                self._drop(quaternion_problem)
-                self.get_logger().warning("dropped odometry with a degenerate (zero or yaw-less) orientation "
-                                          f"quaternion ({q.x}, {q.y}, {q.z}, {q.w})",
-                                          throttle_duration_sec=self._settings.warn_throttle_period)
+                self._refuse(ODOMETRY, stamp, quaternion_problem, "odometry with a degenerate (zero or "
+                             f"yaw-less) orientation quaternion ({q.x}, {q.y}, {q.z}, {q.w})", started)
                 return
             if not np.all(np.isfinite(pose)) or not np.isfinite([q.x, q.y, q.z, q.w]).all():
-                self._drop("non_finite_odometry")
-                self.get_logger().warning("dropped odometry with non-finite pose",
-                                          throttle_duration_sec=self._settings.warn_throttle_period)
+                self._refuse(ODOMETRY, stamp, "non_finite_odometry", "odometry with non-finite pose", started)
                 return
             if quaternion_problem:                   # used after normalisation: counted, not dropped
                 self._corrected[quaternion_problem] += 1
-            self._enqueue(conv.stamp_to_sec(msg.header.stamp), ODOM, pose, received)
+            self._remember_odometry(stamp, pose)
+            if self._motion_kind == ODOMETRY:
+                self._input(ODOMETRY, stamp, pose, started)
+            else:
+                self._inputs += 1            # odometry only places map -> odom and ~/pose
+                self._window_inputs += 1
+            self._publish_odometry_pose(stamp, pose)
+            self._load.add(time.monotonic(), time.monotonic() - started)
 
     def _on_control(self, msg: TwistStamped) -> None:
-        received = time.monotonic()
+        started = time.monotonic()
         control = np.array([msg.twist.linear.x, msg.twist.angular.z], dtype=float)
+        stamp = conv.stamp_to_sec(msg.header.stamp)
         with self._lock:
-            if not np.all(np.isfinite(control)):
-                self._drop("non_finite_control")
-                self.get_logger().warning("dropped control with non-finite speed or angle",
-                                          throttle_duration_sec=self._settings.warn_throttle_period)
-                return
-            stamp = conv.stamp_to_sec(msg.header.stamp)
             if stamp == 0.0:
                 stamp = self._now_sec()      # unstamped twist: use the arrival time
-            self._enqueue(stamp, CONTROL, control, received)
+            if not np.all(np.isfinite(control)):
+                self._refuse(CONTROL, stamp, "non_finite_control", "control with non-finite speed or angle",
+                             started)
+                return
+            self._input(CONTROL, stamp, control, started)
+            self._load.add(time.monotonic(), time.monotonic() - started)
 
     def _on_observations(self, msg: PointCloud2) -> None:
-        received = time.monotonic()
+        started = time.monotonic()
+        stamp = conv.stamp_to_sec(msg.header.stamp)
         with self._lock:
             try:
                 # Observations with invalid ids, zero ranges or wild bearings are left out and counted.
                 observations = conv.observations_from_cloud(msg, drops=self._drops)
             except ValueError as error:      # CloudFormatError is a ValueError
-                self._drop("malformed_cloud")
-                self.get_logger().warning(f"dropped malformed observation cloud: {error}",
-                                          throttle_duration_sec=self._settings.warn_throttle_period)
+                self._refuse(OBSERVATIONS, stamp, "malformed_cloud", f"malformed observation cloud: {error}",
+                             started)
                 return
-            if len(observations) == 0:
-                self._drop("empty_cloud")
-                return
-            self._enqueue(conv.stamp_to_sec(msg.header.stamp), OBSERVATIONS, observations, received)
+            # An empty cloud goes through the merge too: it says "nothing seen up to here".
+            self._input(OBSERVATIONS, stamp, observations, started)
+            self._load.add(time.monotonic(), time.monotonic() - started)
 
-    # ------------------------------------------------------------------ buffer and processing
-    def _enqueue(self, stamp: float, kind: int, payload, received: float) -> None:
-        self._inputs += 1
-        self._window_inputs += 1
+    def _refuse(self, kind: int, stamp: float, reason: str, what: str, started: float) -> None:
+        """An input whose payload is unusable: counted, and its stamp still advances its stream."""
+        self._drop(reason)
+        self.get_logger().warning(f"dropped {what}", throttle_duration_sec=self._settings.warn_throttle_period)
+        if not self._paused and kind in (self._motion_kind, OBSERVATIONS):
+            self._use(self._inputs_path.heard(kind, stamp, started))
+
+    # ------------------------------------------------------------------ input path and estimator
+    def _input(self, kind: int, stamp: float, payload, started: float) -> None:
+        if kind != OBSERVATIONS or len(payload):
+            self._inputs += 1
+            self._window_inputs += 1
         if self._paused:
             self._drop("paused")
             return
-        if not math.isfinite(stamp):
-            self._drop("non_finite_stamp")
-            return
         self._check_clock_jump()
-        s = self._settings
-        # A jump back is judged per input stream: streams lagging each other are reordered
-        # (input_delay) or dropped as out_of_order, never mistaken for a restart.
-        previous = self._newest_by_kind.get(kind)
-        if s.reset_on_time_jump and previous is not None and stamp < previous - s.time_jump_threshold:
-            self._reset(f"{_KIND_NAME[kind]} stamp jumped back {previous - stamp:.3f} s")
-        self._newest_by_kind[kind] = max(stamp, self._newest_by_kind.get(kind, stamp))
-        if self._last_processed is not None and stamp < self._last_processed:
-            self._drop("out_of_order")
-            self.get_logger().warning(
-                f"dropped {_KIND_NAME[kind]} stamped {self._last_processed - stamp:.3f} s before the last "
-                "processed input (raise input_delay to reorder late inputs)",
-                throttle_duration_sec=s.warn_throttle_period)
+        pushed = self._inputs_path.push(kind, stamp, payload, started)
+        if pushed.restarted:
+            jump = pushed.jump
+            self._reset(f"{KIND_NAME[jump.released[0].kind]} stamps jumped back {jump.size:.3f} s "
+                        f"(confirmed by {len(jump.released)} inputs)", keep_inputs=True)
+        elif pushed.jump is not None:
+            self.get_logger().warning(f"input stamps jumped {'back' if pushed.jump.backward else 'ahead'} "
+                                      f"{pushed.jump.size:.3f} s (confirmed by {len(pushed.jump.released)} inputs)")
+        self._use(pushed.released)
+
+    def _use(self, released: list) -> None:
+        """Feed released inputs to the estimator in order; then publish once."""
+        if not released:
             return
-        self._newest = stamp if self._newest is None else max(self._newest, stamp)
-        self._seq += 1
-        heapq.heappush(self._buffer, (stamp, kind, self._seq, payload, received))
-        now = time.monotonic()
-        self._last_enqueue_wall = now
-        self._stream_wall[kind] = now
-        if self._first_input_wall is None:
-            self._first_input_wall = now
-        self._drain(self._watermark(now))
-
-    def _expected_streams(self) -> tuple[int, ...]:
-        return (ODOM, OBSERVATIONS, CONTROL) if self._control_sub is not None else (ODOM, OBSERVATIONS)
-
-    def _watermark(self, now: float) -> float:
-        """Stamp up to which every input is known to have arrived.
-
-        Each stream is ordered, so an input is safe to process once every active
-        stream has delivered something at least as recent: the buffer then loses
-        nothing however fast a bag is replayed or however late one topic lags.
-        A stream silent for ``input_delay`` wall seconds (or never seen that long
-        after the first input) stops holding the others back.
-        """
-        delay = self._settings.input_delay
-        if delay <= 0:
-            return math.inf
-        marks = []
-        for kind in self._expected_streams():
-            seen = self._stream_wall.get(kind)
-            if seen is None:
-                if now - self._first_input_wall < delay:
-                    marks.append(-math.inf)
-            elif now - seen < delay:
-                marks.append(self._newest_by_kind[kind])
-        return min(marks) if marks else math.inf
-
-    def _drain(self, limit: float) -> None:
-        processed = False
-        while self._buffer and self._buffer[0][0] <= limit:
-            stamp, kind, _, payload, received = heapq.heappop(self._buffer)
+        used = False
+        for item in released:
             try:
-                processed |= self._process(stamp, kind, payload)
+                used |= self._feed(item)
             except Exception as error:  # noqa: BLE001 - bad input must never stop the node
                 self._drop("internal_error")
-                self.get_logger().error(f"failed to process {_KIND_NAME[kind]} at {stamp:.3f}: {error!r}",
+                self.get_logger().error(f"failed to process {KIND_NAME[item.kind]} at {item.stamp:.3f}: {error!r}",
                                         throttle_duration_sec=self._settings.warn_throttle_period)
-            self._latencies.append(time.monotonic() - received)
-        if processed:
+            self._latencies.append(time.monotonic() - item.wall)
+        if used:
             self._after_update()
 
-    def _process(self, stamp: float, kind: int, payload) -> bool:
-        throttle = self._settings.warn_throttle_period
-        if self._last_processed is not None and stamp < self._last_processed:
-            self._drop("out_of_order")
-            return False
-        if kind in (ODOM, CONTROL):
-            if self._last_motion_stamp.get(kind) == stamp:
-                self._drop("zero_time_step")
-                self.get_logger().warning(f"dropped {_KIND_NAME[kind]} repeating the previous stamp",
-                                          throttle_duration_sec=throttle)
-                return False
-            self._last_motion_stamp[kind] = stamp
-        if kind == ODOM:
-            self._odom_history.append((stamp, payload))
-            if self._settings.motion_source == "odom":
-                if not self._slam.add_odometry(stamp, payload):
-                    return False
-                self._motion_seen = True
-        elif kind == CONTROL:
-            if not self._slam.add_control(stamp, payload):
-                return False
-            self._motion_seen = True
-        else:
-            if not self._motion_seen:
-                self._drop("no_motion_input")
-                self.get_logger().warning("dropped observations received before any "
-                                          f"{'odometry' if self._settings.motion_source == 'odom' else 'control'}",
-                                          throttle_duration_sec=throttle)
-                return False
-            report = self._slam.add_observations(stamp, payload)
-            if report.dropped:
-                self.get_logger().warning(
-                    "observations dropped by the estimator: "
-                    + ", ".join(f"{k}={v}" for k, v in sorted(report.dropped.items())),
-                    throttle_duration_sec=throttle)
-            if math.isfinite(report.ess):
-                self._last_ess = float(report.ess)
-            self._updates += 1
-            self._window_updates += 1
-            self._map_dirty = True
-            self._publish_particles()
-        self._last_processed = stamp if self._last_processed is None else max(self._last_processed, stamp)
+    def _feed(self, item) -> bool:
+        load = self._load.load(time.monotonic()) if item.kind == OBSERVATIONS else 0.0
+        self.max_load = max(self.max_load, load)
+        shed = load > self._load.limit
+        fed = self._feeder.apply(item, use_observations=not shed)
+        if fed.trajectory_point is not None:
+            t, x, y, yaw = fed.trajectory_point
+            self._path.append(t, (x, y, yaw))         # compact; messages are built at publish time
+        report = fed.report
+        if report is None:
+            return fed.moved or fed.trajectory_point is not None
+        if report.dropped:
+            self.get_logger().warning("observations dropped by the estimator: "
+                                      + ", ".join(f"{k}={v}" for k, v in sorted(report.dropped.items())),
+                                      throttle_duration_sec=self._settings.warn_throttle_period)
+        if math.isfinite(report.ess):
+            self._last_ess = float(report.ess)
+        self._updates += 1
+        self._window_updates += 1
+        self._map_dirty = True
+        self._publish_particles()
         return True
 
     # ------------------------------------------------------------------ outputs
@@ -419,15 +385,15 @@ class OnlineEmSlamNode(Node):
         if stamp is None:
             return
         estimate = self._slam.pose()
-        header = self._header(stamp, self._settings.map_frame)
-        msg = conv.pose_to_msg(header, estimate)
-        if msg is None:
+        if not (np.all(np.isfinite(estimate.mean)) and np.all(np.isfinite(estimate.covariance))):
             self._drop("non_finite_estimate")
             self.get_logger().error("estimate is not finite; pose not published",
                                     throttle_duration_sec=self._settings.warn_throttle_period)
             return
-        self._pose_pub.publish(msg)
-        self._path.append(stamp, estimate.mean)      # compact; messages are built at publish time
+        self._pose_covariance = estimate.covariance
+        self._pose_covariance_36 = conv.pose_to_msg(Header(), estimate).pose.covariance   # reused per odometry
+        if stamp > self._last_pose_stamp:
+            self._publish_pose(stamp, estimate.mean)
         odom_pose = self._odom_at(stamp)
         if odom_pose is None and self._settings.publish_tf:
             self.get_logger().warning(
@@ -438,6 +404,28 @@ class OnlineEmSlamNode(Node):
             if np.all(np.isfinite(map_to_odom)):
                 self._map_to_odom = map_to_odom
                 self._send_transform(stamp)
+
+    def _publish_pose(self, stamp: float, mean: np.ndarray) -> None:
+        # Built by hand with the covariance of the last update: this runs at the odometry rate.
+        if not np.all(np.isfinite(mean)):
+            self._drop("non_finite_estimate")
+            return
+        msg = PoseWithCovarianceStamped(header=self._header(stamp, self._settings.map_frame))
+        msg.pose.pose = conv.pose_msg(float(mean[0]), float(mean[1]), float(mean[2]))
+        msg.pose.covariance = self._pose_covariance_36
+        self._last_pose_stamp = stamp
+        self._pose_pub.publish(msg)
+
+    def _publish_odometry_pose(self, stamp: float, odom_pose: np.ndarray) -> None:
+        """~/pose at an odometry stamp ahead of the estimator: map->odom * odom->base, as TF gives it."""
+        if self._map_to_odom is None or self._pose_covariance is None or stamp <= self._last_pose_stamp:
+            return
+        self._publish_pose(stamp, conv.pose2d_compose(self._map_to_odom, odom_pose))
+
+    def _remember_odometry(self, stamp: float, pose: np.ndarray) -> None:
+        """Odometry history in stamp order (map -> odom is computed at estimator stamps)."""
+        if not self._odom_history or stamp > self._odom_history[-1][0]:
+            self._odom_history.append((stamp, pose))
 
     def _odom_at(self, stamp: float) -> np.ndarray | None:
         """Odometry pose at ``stamp``, interpolated from the recent odometry (None if too far)."""
@@ -518,7 +506,8 @@ class OnlineEmSlamNode(Node):
                 "confirmed_landmarks": int(np.count_nonzero(landmarks.confirmed)),
                 "observation_updates": self._updates,
                 "inputs": self._inputs,
-                "queued_inputs": len(self._buffer),
+                "queued_inputs": len(self._inputs_path),
+                "load": self._load.load(now),
                 "paused": self._paused,
                 "resets": self._resets,
                 "last_stamp": self._slam.last_stamp if self._slam.last_stamp is not None else -1.0,
@@ -554,27 +543,24 @@ class OnlineEmSlamNode(Node):
         self._pending_jump = True
 
     def _check_clock_jump(self) -> None:
+        """A /clock jump back confirms a time jump by itself (bag played in a loop)."""
         if not self._pending_jump:
             return
         self._pending_jump = False
         s = self._settings
         now = self._now_sec()
-        if s.reset_on_time_jump and self._newest is not None and self._newest > now + s.time_jump_threshold:
+        newest = self._inputs_path.newest
+        if s.reset_on_time_jump and newest is not None and newest > now + s.time_jump_threshold:
             self._reset(f"clock jumped back to {now:.3f} s")
 
     def _housekeeping(self) -> None:
         with self._lock:
             self._check_clock_jump()
-            # Inputs held for reordering are processed once no newer input came for a while,
-            # and a stream that went silent stops holding the others back.
-            if self._buffer:
-                now = time.monotonic()
-                if now - self._last_enqueue_wall > self._settings.input_delay + 0.2:
-                    self._drain(math.inf)
-                else:
-                    self._drain(self._watermark(now))
+            # A stream that went silent stops holding the others back.
+            self._use(self._inputs_path.release(time.monotonic()))
 
-    def _reset(self, reason: str) -> None:
+    def _reset(self, reason: str, keep_inputs: bool = False) -> None:
+        """Restart the estimate; ``keep_inputs``: the input path already restarted on a confirmed jump."""
         with self._lock:
             s = self._settings
             if self._pending_config is not None:
@@ -584,15 +570,13 @@ class OnlineEmSlamNode(Node):
                 self._slam = OnlineEMSlam(self._config, initial_pose=s.initial_pose)
             else:
                 self._slam.reset(initial_pose=s.initial_pose, stamp=None)
-            self._buffer.clear()
-            self._newest = self._last_processed = None
-            self._newest_by_kind.clear()
-            self._stream_wall.clear()
-            self._first_input_wall = None
-            self._last_motion_stamp.clear()
-            self._motion_seen = False
+            if not keep_inputs:
+                self._inputs_path.reset()
+            self._feeder.reset(self._slam)
             self._odom_history.clear()
             self._map_to_odom = None
+            self._pose_covariance = None
+            self._last_pose_stamp = -math.inf
             self._last_tf_ns = -1
             self._path.clear()
             self._map_dirty = True
@@ -610,6 +594,7 @@ class OnlineEmSlamNode(Node):
     def _srv_pause(self, request, response):
         with self._lock:
             self._paused = bool(request.data)
+            self._inputs_path.forget_time_line()     # the stamps after a pause continue elsewhere
         response.success = True
         response.message = "paused: inputs are ignored" if self._paused else "resumed"
         self.get_logger().info(response.message)
@@ -679,6 +664,7 @@ class OnlineEmSlamNode(Node):
         with self._lock:
             self._path.resize(settings.path_max_length, settings.path_publish_max_poses)
             self._settings = settings
+            self._inputs_path.sequencer.silence = settings.input_delay
             if config != self._slam.config:
                 self._pending_config = config
                 self.get_logger().info("core settings changed; they take effect at the next reset (~/reset)")

@@ -1,0 +1,74 @@
+"""Released inputs into an estimator: the one place that decides what drives what.
+
+Works with every estimator of the package (``add_control``, ``add_odometry``,
+``add_observations``, ``pose``).  Empty clouds carry no observation and are
+not fed (``empty_cloud``); observations before the first motion input have no
+pose to hang on (``no_motion_input``).  The trajectory is the estimator's pose
+after each observation message, once per estimator stamp: the node publishes it
+as ``~/path`` and the offline runner writes it as trajectory.csv, so the two
+are comparable point for point.
+"""
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+
+from .inputs import CONTROL, ODOMETRY, Input
+
+
+@dataclass
+class Fed:
+    """What applying one input did."""
+
+    moved: bool = False              # a motion input was used
+    report: object = None            # StepReport of an observation update, else None
+    trajectory_point: tuple | None = None   # (stamp, x, y, yaw) appended to the trajectory
+
+
+class Feeder:
+    def __init__(self, estimator, motion_source: str, drops: Counter | None = None) -> None:
+        self.estimator = estimator
+        self.motion_kind = ODOMETRY if motion_source == "odom" else CONTROL
+        self.drops = drops if drops is not None else Counter()
+        self.reset(estimator)
+
+    def reset(self, estimator) -> None:
+        self.estimator = estimator
+        self.motion_seen = False
+        self.last_point_stamp: float | None = None
+
+    def apply(self, item: Input, use_observations: bool = True) -> Fed:
+        """Apply ``item``; ``use_observations`` False sheds an observation update (overload)."""
+        if item.kind == self.motion_kind:
+            return self._motion(item)
+        if item.kind != ODOMETRY and item.kind != CONTROL:
+            return self._observations(item, use_observations)
+        return Fed()                 # odometry while control drives the motion: pose bookkeeping only
+
+    def _motion(self, item: Input) -> Fed:
+        add = self.estimator.add_odometry if item.kind == ODOMETRY else self.estimator.add_control
+        moved = bool(add(item.stamp, item.payload))
+        self.motion_seen |= moved
+        return Fed(moved=moved)
+
+    def _observations(self, item: Input, use_observations: bool) -> Fed:
+        fed = Fed()
+        if item.is_empty_cloud:
+            self.drops["empty_cloud"] += 1
+        elif not self.motion_seen:
+            self.drops["no_motion_input"] += 1
+            return fed
+        elif not use_observations:
+            self.drops["overload"] += 1
+        else:
+            fed.report = self.estimator.add_observations(item.stamp, item.payload)
+        fed.trajectory_point = self._trajectory_point(item.stamp)
+        return fed
+
+    def _trajectory_point(self, stamp: float) -> tuple | None:
+        estimate = self.estimator.pose()
+        t = estimate.stamp if estimate.stamp is not None else stamp
+        if self.last_point_stamp is not None and t <= self.last_point_stamp:
+            return None
+        self.last_point_stamp = float(t)
+        return (float(t), *map(float, estimate.mean[:3]))

@@ -1,0 +1,89 @@
+"""Time jumps versus lone bad stamps.
+
+One input stamped 0, negative or far in the future must not move the time
+line (a reset would wipe the map; a far-future stamp would make every later
+input of its stream look out of order).  An input further than ``threshold``
+from the current time line is held as a *candidate* jump: it becomes a jump
+only when ``confirmations`` inputs agree with it (a bag played in a loop, a
+clock that really jumped).  The candidate is refuted when a stream that took
+part in it delivers an input on the old time line again; its inputs are then
+dropped and counted as ``stamp_outlier``.  Inputs of other streams on the old
+line do not refute it: a lagging stream may still deliver old stamps after a
+real jump.  A /clock jump is confirmation enough; the node resets the guard then.
+"""
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+
+from .inputs import Input
+
+ACCEPT, HOLD, JUMPED = "accept", "hold", "jumped"
+
+
+@dataclass
+class Verdict:
+    action: str                                    # ACCEPT, HOLD or JUMPED
+    released: list = field(default_factory=list)   # JUMPED: the inputs of the confirmed jump, in arrival order
+    backward: bool = False                         # JUMPED: the new time line is behind the old one
+    size: float = 0.0                              # JUMPED: how far (s)
+
+
+class StampGuard:
+    def __init__(self, threshold: float, confirmations: int = 3, drops: Counter | None = None) -> None:
+        self.threshold = float(threshold)
+        self.confirmations = max(int(confirmations), 1)
+        self.drops = drops if drops is not None else Counter()
+        self.reset()
+
+    def reset(self) -> None:
+        self._newest: dict[int, float] = {}        # per stream, accepted inputs only
+        self._candidate: list[Input] = []
+
+    @property
+    def holding(self) -> int:
+        return len(self._candidate)
+
+    def _reference(self, kind: int) -> float | None:
+        return self._newest.get(kind, max(self._newest.values()) if self._newest else None)
+
+    def is_jump(self, item: Input) -> bool:
+        reference = self._reference(item.kind)
+        if reference is None:
+            return False
+        newest = max(self._newest.values())
+        return item.stamp < reference - self.threshold or item.stamp > newest + self.threshold
+
+    def check(self, item: Input) -> Verdict:
+        if not self.is_jump(item):
+            if any(c.kind == item.kind for c in self._candidate):
+                self._refute()
+            self._accept(item)
+            return Verdict(ACCEPT)
+        if self._candidate and not self._agrees(item):
+            self._refute()
+        self._candidate.append(item)
+        if len(self._candidate) < self.confirmations:
+            return Verdict(HOLD)
+        return self._confirm()
+
+    def _agrees(self, item: Input) -> bool:
+        stamps = [c.stamp for c in self._candidate]
+        return min(stamps) - self.threshold <= item.stamp <= max(stamps) + self.threshold
+
+    def _refute(self) -> None:
+        self.drops["stamp_outlier"] += len(self._candidate)
+        self._candidate = []
+
+    def _confirm(self) -> Verdict:
+        held, self._candidate = self._candidate, []
+        old = max(self._newest.values())
+        backward = held[0].stamp < old
+        self._newest = {}
+        for item in held:
+            self._accept(item)
+        return Verdict(JUMPED, held, backward, abs(held[0].stamp - old))
+
+    def _accept(self, item: Input) -> None:
+        previous = self._newest.get(item.kind)
+        self._newest[item.kind] = item.stamp if previous is None else max(previous, item.stamp)

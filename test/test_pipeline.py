@@ -1,0 +1,223 @@
+"""The ROS-free input path: stamp-ordered merge, stamp guard, loss detection, feeder, load."""
+from __future__ import annotations
+
+import math
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from online_em_slam.core.config import SlamConfig
+from online_em_slam.core.slam import OnlineEMSlam
+from online_em_slam.core.types import Observations
+from online_em_slam.pipeline import (CONTROL, OBSERVATIONS, ODOMETRY, Feeder, Input, InputPath, LoadMonitor,
+                                     Sequencer, StampGuard)
+from online_em_slam.pipeline.gaps import GapDetector
+
+EMPTY = Observations(np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.int64))
+
+
+def obs(*ranges):
+    n = len(ranges)
+    return Observations(np.asarray(ranges, float), np.zeros(n), np.full(n, -1, dtype=np.int64))
+
+
+def streams(rng, duration=5.0):
+    """Odometry at 40 Hz and clouds at ~4.7 Hz (some stamps shared with odometry), each in stamp order."""
+    odometry = [(ODOMETRY, round(0.025 * k, 6), k) for k in range(int(duration / 0.025))]
+    clouds = [(OBSERVATIONS, round(0.2 * k + (0.0 if k % 3 else 0.05), 6), -k) for k in range(int(duration / 0.2))]
+    return odometry, clouds
+
+
+def interleave(rng, a, b):
+    out, i, j = [], 0, 0
+    while i < len(a) or j < len(b):
+        if j >= len(b) or (i < len(a) and rng.random() < 0.5):
+            out.append(a[i])
+            i += 1
+        else:
+            out.append(b[j])
+            j += 1
+    return out
+
+
+def run_sequencer(events, silence=math.inf):
+    seq = Sequencer((ODOMETRY, OBSERVATIONS), silence)
+    out = []
+    for kind, stamp, payload in events:
+        out += seq.push(Input(stamp, kind, payload=payload), 0.0)
+    return [(i.stamp, i.kind, i.payload) for i in out + seq.flush()], seq.drops
+
+
+def test_merge_is_the_same_for_every_interleaving():
+    rng = np.random.default_rng(0)
+    odometry, clouds = streams(rng)
+    expected = sorted(odometry + clouds, key=lambda e: (e[1], e[0]))
+    expected = [(stamp, kind, payload) for kind, stamp, payload in expected]
+    for _ in range(20):
+        got, drops = run_sequencer(interleave(rng, odometry, clouds))
+        assert got == expected and not drops
+    # Tie rule: odometry before observations at one stamp, control after them.
+    seq = Sequencer((ODOMETRY, OBSERVATIONS, CONTROL), math.inf)
+    out = []
+    for item in (Input(1.0, CONTROL), Input(1.0, OBSERVATIONS, payload=EMPTY), Input(1.0, ODOMETRY)):
+        out += seq.push(item, 0.0)
+    assert [i.kind for i in out + seq.flush()] == [ODOMETRY, OBSERVATIONS, CONTROL]
+
+
+def test_watermark_waits_for_every_live_stream_and_empty_clouds_advance_it():
+    seq = Sequencer((ODOMETRY, OBSERVATIONS), silence=1.0)
+    assert seq.push(Input(0.0, ODOMETRY), wall=0.0) == []            # observations not heard yet
+    assert [i.stamp for i in seq.push(Input(0.0, OBSERVATIONS, payload=EMPTY), 0.01)] == [0.0, 0.0]
+    for k in range(1, 9):
+        assert seq.push(Input(0.025 * k, ODOMETRY), 0.01 + 0.025 * k) == []   # held for the cloud stream
+    released = seq.push(Input(0.2, OBSERVATIONS, payload=EMPTY), 0.25)      # an empty cloud releases them
+    assert [i.stamp for i in released] == pytest.approx([0.025 * k for k in range(1, 9)] + [0.2])
+
+
+def test_silent_stream_stops_holding_and_a_lagging_stream_is_still_in_time():
+    """A detector delivering 60 ms late, silent for longer than ``silence``, is not dropped when it resumes."""
+    seq = Sequencer((ODOMETRY, OBSERVATIONS), silence=1.0)
+    wall = lambda stamp: stamp + 0.001          # noqa: E731  odometry arrives at once
+    out = []
+    t = 0.0
+    for k in range(200):                        # 5 s of odometry; clouds 60 ms late for the first second
+        t = 0.025 * k
+        out += seq.push(Input(t, ODOMETRY), wall(t))
+        if k % 8 == 0 and t < 1.0:
+            out += seq.push(Input(t - 0.06, OBSERVATIONS, payload=obs(5.0)), wall(t))
+        out += seq.release(wall(t))
+    assert out and out[-1].stamp > 3.5          # the silent stream stopped holding odometry back
+    for k in range(200, 240):                   # the detector resumes, still 60 ms late
+        t = 0.025 * k
+        out += seq.push(Input(t, ODOMETRY), wall(t))
+        if k % 8 == 0:
+            out += seq.push(Input(t - 0.06, OBSERVATIONS, payload=obs(5.0)), wall(t))
+    out += seq.flush()
+    assert not seq.drops, seq.drops
+    assert sum(i.kind == OBSERVATIONS for i in out) == 5 + 5
+    assert [i.stamp for i in out] == sorted(i.stamp for i in out)
+
+
+def test_out_of_order_repeated_and_late_inputs_are_counted():
+    seq = Sequencer((ODOMETRY, OBSERVATIONS), silence=0.0)
+    seq.push(Input(1.0, ODOMETRY), 0.0)
+    seq.push(Input(1.0, ODOMETRY), 0.0)
+    seq.push(Input(0.5, ODOMETRY), 0.0)
+    seq.push(Input(2.0, OBSERVATIONS, payload=obs(1.0)), 0.0)
+    seq.push(Input(2.0, OBSERVATIONS, payload=obs(1.0)), 0.0)
+    seq.push(Input(1.5, ODOMETRY), 0.0)                     # behind what was released
+    assert seq.drops == Counter(zero_time_step=1, out_of_order=2, repeated_stamp=1)
+
+
+@pytest.mark.parametrize("bad", [0.0, -5.0, 1e6, 2.0 ** 31 - 1])
+def test_a_lone_bad_stamp_is_dropped_and_does_not_move_the_time_line(bad):
+    path = InputPath((ODOMETRY, OBSERVATIONS), silence=0.0, jump_threshold=1.0)
+    released = []
+    for k in range(40):
+        t = 1000.0 + 0.025 * k
+        stamp = bad if k == 20 else t
+        pushed = path.push(ODOMETRY, stamp, k, 0.0)
+        assert not pushed.restarted and pushed.jump is None
+        released += pushed.released
+    assert path.drops == Counter(stamp_outlier=1)
+    assert [i.payload for i in released] == [k for k in range(40) if k != 20]
+
+
+def test_a_confirmed_jump_back_restarts_and_keeps_its_inputs():
+    path = InputPath((ODOMETRY, OBSERVATIONS), silence=0.0, jump_threshold=1.0, confirmations=3)
+    for k in range(10):
+        path.push(ODOMETRY, 1000.0 + 0.1 * k, k, 0.0)
+    results = [path.push(kind, stamp, None if kind == ODOMETRY else EMPTY, 0.0)
+               for kind, stamp in ((ODOMETRY, 10.0), (OBSERVATIONS, 10.05), (ODOMETRY, 10.1))]
+    assert [r.restarted for r in results] == [False, False, True]
+    assert results[-1].jump.backward and results[-1].jump.size == pytest.approx(990.9)
+    assert [i.stamp for i in results[-1].released] == [10.0, 10.05, 10.1]
+    assert not path.drops
+    # Without restart (reset_on_time_jump false) the old time line stays: the jump is out of order.
+    path = InputPath((ODOMETRY,), silence=0.0, jump_threshold=1.0, restart_on_jump_back=False)
+    path.push(ODOMETRY, 1000.0, 0, 0.0)
+    for k in range(3):
+        pushed = path.push(ODOMETRY, 10.0 + k, 0, 0.0)
+    assert not pushed.restarted and pushed.released == [] and path.drops["out_of_order"] == 3
+
+
+def test_a_far_future_stamp_does_not_block_later_inputs():
+    """issue 12 defect 6: one far-future observation, a pause, then inputs continue: none is lost."""
+    path = InputPath((ODOMETRY, OBSERVATIONS), silence=1.0, jump_threshold=1.0)
+    used = []
+    wall = 0.0
+    for k in range(100):
+        t, wall = 0.025 * k, 0.025 * k + (1.2 if k >= 50 else 0.0)       # a 1.2 s pause after k = 50
+        used += path.push(ODOMETRY, t, None, wall).released
+        if k % 8 == 0:
+            used += path.push(OBSERVATIONS, t if k != 40 else t + 1e6, obs(5.0), wall).released
+        used += path.release(wall)
+    used += path.flush()
+    assert path.drops == Counter(stamp_outlier=1)
+    assert sum(i.kind == ODOMETRY for i in used) == 100 and sum(i.kind == OBSERVATIONS for i in used) == 12
+
+
+def test_gap_detector_counts_lost_motion_messages():
+    gaps = GapDetector((ODOMETRY,))
+    stamps = [0.025 * k for k in range(100) if k not in (40, 41, 42, 70)]
+    lost = [gaps.observe(ODOMETRY, t) for t in stamps]
+    assert sum(lost) == 4 and gaps.drops == Counter(odometry_lost=4)
+    assert gaps.observe(OBSERVATIONS, 100.0) == 0                  # observations may be irregular
+
+
+def test_lost_odometry_loses_no_motion():
+    """Odometry is a pose: the increment over a gap carries the motion of the lost messages."""
+    quiet = dict(odometry_translation_std=0.0, odometry_rotation_std=0.0, odometry_translation_per_meter=0.0,
+                 odometry_rotation_per_radian=0.0, odometry_rotation_per_meter=0.0, position_jitter=1e-9,
+                 heading_jitter=1e-9)        # noise-free, so the means compare exactly
+    config = SlamConfig.from_dict({"motion": {"model": "odometry", **quiet},
+                                   "filter": {"seed": 1, "num_particles": 20, "initial_pose_std": [0.0, 0.0, 0.0]}})
+    poses = [(0.1 * k, 0.002 * k * k, 0.01 * k) for k in range(200)]
+
+    def final(skip):
+        slam = OnlineEMSlam(config)
+        for k, pose in enumerate(poses):
+            if k not in skip:
+                slam.add_odometry(0.025 * k, pose)
+        return slam.pose().mean
+    full, lossy = final(set()), final({k for k in range(199) if k % 7 == 3 or 100 <= k < 140})
+    assert np.allclose(full, poses[-1], atol=1e-6) and np.allclose(lossy, full, atol=1e-6), (full, lossy)
+
+
+def test_feeder_skips_empty_clouds_and_observations_before_motion():
+    config = SlamConfig.from_dict({"motion": {"model": "odometry"}, "filter": {"seed": 1, "num_particles": 10}})
+    slam = OnlineEMSlam(config)
+    feeder = Feeder(slam, "odom")
+    assert feeder.apply(Input(0.0, OBSERVATIONS, payload=obs(5.0))).trajectory_point is None
+    assert feeder.apply(Input(0.1, ODOMETRY, payload=(0.0, 0.0, 0.0))).moved
+    fed = feeder.apply(Input(0.2, OBSERVATIONS, payload=EMPTY))
+    assert fed.report is None and fed.trajectory_point[0] == 0.1
+    assert feeder.apply(Input(0.3, ODOMETRY, payload=(0.1, 0.0, 0.0))).moved
+    fed = feeder.apply(Input(0.3, OBSERVATIONS, payload=obs(5.0)), use_observations=False)
+    assert fed.report is None and fed.trajectory_point[0] == pytest.approx(0.3)
+    fed = feeder.apply(Input(0.4, OBSERVATIONS, payload=obs(5.0)))
+    assert fed.report is not None and fed.trajectory_point[0] == pytest.approx(0.4)
+    assert feeder.drops == Counter(no_motion_input=1, empty_cloud=1, overload=1)
+
+
+def test_load_monitor():
+    load = LoadMonitor(window=1.0, limit=0.9)
+    for k in range(100):
+        load.add(0.01 * k, 0.005)
+    assert load.load(1.0) == pytest.approx(0.5, abs=0.02) and not load.overloaded(1.0)
+    for k in range(100, 200):
+        load.add(0.01 * k, 0.0095)
+    assert load.overloaded(2.0)
+    assert load.load(5.0) == 0.0
+
+
+def test_stamp_guard_refutes_only_by_the_stream_that_jumped():
+    guard = StampGuard(1.0, confirmations=3)
+    guard.check(Input(100.0, ODOMETRY))
+    guard.check(Input(100.0, OBSERVATIONS))
+    assert guard.check(Input(5.0, ODOMETRY)).action == "hold"
+    assert guard.check(Input(100.1, OBSERVATIONS)).action == "accept"   # a lagging stream: no refutation
+    assert guard.holding == 1
+    assert guard.check(Input(100.1, ODOMETRY)).action == "accept"       # the jumped stream is back
+    assert guard.holding == 0 and guard.drops == Counter(stamp_outlier=1)
