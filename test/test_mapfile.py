@@ -309,3 +309,15 @@ def test_confined_path(tmp_path):
                  "/etc/passwd", ".", ""):
         with pytest.raises(mapfile.MapFileError):
             mapfile.confined_path(name, str(root))
+
+
+def test_metrics_json_is_not_written_through_a_planted_symlink(tmp_path):
+    """cli.json_dump (metrics.json of every run) used the predictable name metrics.json.tmp."""
+    from online_em_slam.cli import json_dump
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    (tmp_path / "metrics.json.tmp").symlink_to(victim)
+    json_dump(tmp_path / "metrics.json", {"rmse": 1.0})
+    assert victim.read_text() == "precious\n"
+    assert (tmp_path / "metrics.json").read_text() == '{\n  "rmse": 1.0\n}\n'
+    assert sorted(os.listdir(tmp_path)) == ["metrics.json", "metrics.json.tmp", "victim.txt"]
