@@ -5,15 +5,18 @@
                        [--match-gate M] [--align] [--no-plot]
     online-em-slam compare BAG --params FILE --output DIR [--methods ...] [--seed S] ...
 
-``run`` reads the bag (rosbags, no rclpy) and feeds the estimator in log-time
-order, as the node would receive it: the control topic -> ``add_control``
-(``motion_source: control``) or the odometry topic -> ``add_odometry``
-(``motion_source: odom``), the observation topic (PointCloud2 with fields range,
-bearing and optional id, range_std, bearing_std) -> ``add_observations``.  Topic
-names and every setting come from the node's parameter file (``--params``), read
-with :mod:`online_em_slam.paramfile`.  As the node does, empty observation clouds
-and observations before the first motion input are not fed (counted under
-``runner_skipped`` in metrics.json).
+``run`` reads the bag (rosbags, no rclpy) and feeds the estimator through the
+node's own input path (:mod:`online_em_slam.pipeline`: stamp checks, the
+(stamp, kind) ordered merge of the streams, the feeder), so the estimator sees
+the identical sequence of inputs as the node: the control topic ->
+``add_control`` (``motion_source: control``) or the odometry topic ->
+``add_odometry`` (``motion_source: odom``), the observation topic (PointCloud2
+with fields range, bearing and optional id, range_std, bearing_std) ->
+``add_observations``.  Topic names and every setting come from the node's
+parameter file (``--params``), read with :mod:`online_em_slam.paramfile`.
+Empty observation clouds and observations before the first motion input are not
+fed (counted under ``runner_skipped`` in metrics.json, with every input the path
+refused, by reason).
 
 Initial pose (``--initial-pose``, default ``auto``): the ``initial_pose.*`` keys
 of the params file when it sets any; otherwise, when the bag has
@@ -56,6 +59,7 @@ from .core.types import Observations
 from .evaluation import (DEFAULT_MATCH_GATE, InitialPose, initial_pose_from_gps, landmark_metrics,
                          sensor_points, timing_metrics, trajectory_metrics)
 from .paramfile import config_from_params, load_params
+from .pipeline import CONTROL, OBSERVATIONS, ODOMETRY, Feeder, InputPath
 from .tum import write_run_tum
 
 METHODS = ("online_em", "ekf_slam", "fastslam2")
@@ -63,7 +67,7 @@ GT_POSITION_TOPIC = "/ground_truth/position"
 GT_LANDMARKS_TOPIC = "/ground_truth/landmarks"
 TRAJECTORY_HEADER = ("t", "x", "y", "yaw")
 LANDMARK_HEADER = ("id", "x", "y", "cov_xx", "cov_xy", "cov_yy", "n_obs")
-CONTROL, ODOM, OBSERVATIONS = "control", "odom", "observations"
+ODOM = ODOMETRY
 
 
 def _absolute(topic: str) -> str:
@@ -81,7 +85,7 @@ class BagInputs:
     """Everything a run needs from a bag, in log-time order (read once, reused by compare)."""
 
     path: str
-    events: list                          # (kind, stamp, payload)
+    events: list                          # (kind, stamp, payload), kind as in online_em_slam.pipeline
     odom_times: np.ndarray
     odom_poses: np.ndarray
     gps_times: np.ndarray
@@ -90,6 +94,8 @@ class BagInputs:
     landmark_ids: np.ndarray | None
     topics: dict = field(default_factory=dict)
     malformed: int = 0
+    motion_source: str = "odom"           # which motion input drives the estimator (node setting)
+    jump_threshold: float = 1.0           # node setting time_jump_threshold (stamp outliers)
 
     @property
     def has_gps(self) -> bool:
@@ -152,7 +158,8 @@ def read_inputs(bag, settings) -> BagInputs:
             landmark_ids = (np.asarray(cols["id"], dtype=int) if "id" in cols else np.arange(len(landmarks)))
     return BagInputs(str(bag), events, np.asarray(odom_t, dtype=float), np.asarray(odom_p, dtype=float).reshape(-1, 3),
                      np.asarray(gps_t, dtype=float), np.asarray(gps_xy, dtype=float).reshape(-1, 2),
-                     landmarks, landmark_ids, counts, malformed)
+                     landmarks, landmark_ids, counts, malformed, settings.motion_source,
+                     settings.time_jump_threshold)
 
 
 # --------------------------------------------------------------------------- initial pose
@@ -212,39 +219,44 @@ class RunResult:
     n_observation_messages: int
 
 
+def motion_streams(motion_source: str) -> tuple[int, ...]:
+    """The input streams that are merged: the motion input that drives the estimator and the observations."""
+    return (ODOMETRY if motion_source == "odom" else CONTROL, OBSERVATIONS)
+
+
 def feed(estimator, inputs: BagInputs) -> RunResult:
-    """Feed the events in order; record the pose after every observation message."""
+    """Feed the events through the node's input path; record the pose after every observation message.
+
+    The bag stands for streams that never fall silent (no wall clock): the merge
+    waits for every stream and the end of the bag releases the rest.
+    """
+    path = InputPath(motion_streams(inputs.motion_source), silence=math.inf,
+                     jump_threshold=inputs.jump_threshold, restart_on_jump_back=False)
+    feeder = Feeder(estimator, inputs.motion_source, path.drops)
     durations, rows = [], []
-    skipped = {"empty_cloud": 0, "no_motion_input": 0, "malformed_cloud": inputs.malformed}
-    motion_seen = False
     n_obs_msgs = 0
-    first = last = None
     started = time.perf_counter()
     for kind, stamp, payload in inputs.events:
-        if kind == CONTROL:
-            motion_seen |= bool(estimator.add_control(stamp, payload))
-        elif kind == ODOM:
-            motion_seen |= bool(estimator.add_odometry(stamp, payload))
-        else:
-            n_obs_msgs += 1
-            if len(payload) == 0:
-                skipped["empty_cloud"] += 1
-            elif not motion_seen:
-                skipped["no_motion_input"] += 1
-                continue
-            else:
-                report = estimator.add_observations(stamp, payload)
-                durations.append(report.duration)
-            estimate = estimator.pose()
-            t = estimate.stamp if estimate.stamp is not None else stamp
-            if not rows or t > rows[-1][0]:
-                rows.append((float(t), *map(float, estimate.mean[:3])))
-        first = stamp if first is None else first
-        last = stamp
+        n_obs_msgs += kind == OBSERVATIONS
+        for item in path.push(kind, stamp, payload, 0.0).released:
+            _feed_one(feeder, item, durations, rows)
+    for item in path.flush():
+        _feed_one(feeder, item, durations, rows)
     wall = time.perf_counter() - started
+    stamps = [stamp for _, stamp, _ in inputs.events]
+    skipped = {k: int(v) for k, v in path.drops.items() if v}
+    if inputs.malformed:
+        skipped["malformed_cloud"] = inputs.malformed
     return RunResult("", np.asarray(rows, dtype=float).reshape(-1, 4), estimator.landmarks(), durations, wall,
-                     (last - first) if first is not None else 0.0, dict(estimator.drops),
-                     {k: v for k, v in skipped.items() if v}, n_obs_msgs)
+                     (max(stamps) - min(stamps)) if stamps else 0.0, dict(estimator.drops), skipped, n_obs_msgs)
+
+
+def _feed_one(feeder: Feeder, item, durations: list, rows: list) -> None:
+    fed = feeder.apply(item)
+    if fed.report is not None:
+        durations.append(fed.report.duration)
+    if fed.trajectory_point is not None:
+        rows.append(fed.trajectory_point)
 
 
 def evaluate(result: RunResult, inputs: BagInputs, config: SlamConfig, match_gate: float = DEFAULT_MATCH_GATE,
