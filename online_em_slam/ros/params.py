@@ -161,10 +161,12 @@ NODE_SPECS = (
     ParamSpec("observations_topic", "landmark_observations", "Range-bearing observations topic "
               "(PointCloud2 with fields range, bearing; optional id, range_std, bearing_std).",
               read_only=True),
-    ParamSpec("input_qos.reliability", "reliable", "Input subscriptions' reliability: reliable (lossless "
-              "bag replay; needs reliable publishers) or best_effort (matches every publisher).",
-              choices=RELIABILITIES, read_only=True),
-    ParamSpec("input_qos.depth", 1000, "Input queue depth.", 1, 100000, read_only=True),
+    ParamSpec("input_qos.reliability", "best_effort", "Input subscriptions: best_effort (KEEP_LAST "
+              "input_qos.depth; matches every publisher, as REP-2003 sensor inputs) or reliable (KEEP_ALL: "
+              "lossless bag replay, a full queue makes the reliable publisher wait; needs reliable "
+              "publishers).", choices=RELIABILITIES, read_only=True),
+    ParamSpec("input_qos.depth", 1000, "Input queue depth (best_effort; the resource hint of reliable).",
+              1, 100000, read_only=True),
     ParamSpec("input_delay", 1.0, "Inputs are processed in stamp order: each waits until every active "
               "input stream has delivered a message at least as recent (lossless at any replay rate); a "
               "stream silent for this long (wall-clock s) stops holding the others back. Must exceed the "
@@ -208,7 +210,7 @@ class NodeSettings:
     odom_topic: str = "odom"
     control_topic: str = "control"
     observations_topic: str = "landmark_observations"
-    input_reliability: str = "reliable"
+    input_reliability: str = "best_effort"
     input_depth: int = 1000
     input_delay: float = 1.0
     reset_on_time_jump: bool = True
