@@ -194,8 +194,13 @@ class EMConfig:
                     Gauss-Newton system over poses and map at the filter's mean
                     poses, poses integrated out every ``segment_length`` steps
                     (docs/METHOD.md, "Observed-information M-step").
-    relinearize_threshold: a landmark or key pose that moved by more than this
-                    (m) since its factors were linearised is re-linearised.
+    first_estimate_jacobians: the observed M-step takes each pose's and landmark's
+                    Jacobians at its first estimate (FEJ) so that the linearised
+                    system leaves the map's orientation unobserved, as the
+                    nonlinear problem does.
+    relinearize_threshold: a landmark farther than this (m) from the point its
+                    Jacobians were taken at gets Jacobians at its current
+                    estimate for its next factors.
     """
 
     algorithm: str = "online"
@@ -207,6 +212,7 @@ class EMConfig:
     m_step: str = "complete"
     segment_length: int = 10
     relinearize_threshold: float = 0.5
+    first_estimate_jacobians: bool = True
 
     def validate(self, prefix: str = "em") -> None:
         _check_choice(f"{prefix}.algorithm", self.algorithm, EM_ALGORITHMS)

@@ -28,7 +28,9 @@ class ObservedInformationEM:
 
     def __init__(self, config: SlamConfig, initial_pose: np.ndarray) -> None:
         self.config = config
-        self.system = ObservedInformation(config.sensor, initial_pose, config.filter.initial_pose_std)
+        self.system = ObservedInformation(config.sensor, initial_pose, config.filter.initial_pose_std,
+                                          first_estimates=config.em.first_estimate_jacobians,
+                                          relinearize_threshold=config.em.relinearize_threshold)
         # Complete-data information per landmark, sum of H^T Pbar H: its inverse is the
         # landmark's uncertainty relative to the poses it was seen from (the gate's term).
         self.information = np.zeros((0, 2, 2))

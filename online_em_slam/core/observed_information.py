@@ -64,10 +64,15 @@ class StepFactors:
 class ObservedInformation:
     """Information form over [dx_key; theta] plus the buffered factors of the open segment."""
 
-    def __init__(self, sensor: SensorConfig, initial_pose, initial_pose_std) -> None:
+    def __init__(self, sensor: SensorConfig, initial_pose, initial_pose_std,
+                 first_estimates: bool = True, relinearize_threshold: float = np.inf) -> None:
         self.sensor = sensor
+        self.first_estimates = first_estimates
+        self.relinearize_threshold = relinearize_threshold
         std = np.maximum(np.asarray(initial_pose_std, dtype=float), MIN_PRIOR_STD)
         self.key_pose = np.asarray(initial_pose, dtype=float).copy()       # xbar of the key pose
+        self.key_first = self.key_pose.copy()                                 # its first estimate
+        self.landmark_first = np.zeros((0, 2))                                # NaN until first linearised
         self.info = np.diag(1.0 / std ** 2)                                   # (3 + 2M, 3 + 2M)
         self.vector = np.zeros(POSE_DIM)                                      # (3 + 2M,)
         self.segment: list[StepFactors] = []
@@ -87,6 +92,7 @@ class ObservedInformation:
         info[:n, :n] = self.info
         self.info = info
         self.vector = np.concatenate([self.vector, np.zeros(2 * count)])
+        self.landmark_first = np.vstack([self.landmark_first, np.full((count, 2), np.nan)])
         self._covariance_cache = None
 
     def keep_landmarks(self, keep: np.ndarray) -> None:
@@ -98,6 +104,7 @@ class ObservedInformation:
         landmark say next to nothing about the poses.
         """
         keep = np.asarray(keep, dtype=bool)
+        self.landmark_first = self.landmark_first[keep]
         new_row = np.cumsum(keep) - 1
         for step in self.segment:
             mask = keep[step.rows]
@@ -133,12 +140,26 @@ class ObservedInformation:
         kept = np.arange(POSE_DIM * k, size)
         self.info, self.vector = marginalize(info, vector, kept, eliminated)
         self.key_pose = self.segment[-1].pose.copy()
+        self.key_first = self.key_pose.copy()
         self.segment = []
         self._covariance_cache = None
 
     def _add_motion_factors(self, info: np.ndarray, vector: np.ndarray) -> None:
-        """(M) for every step: J = [-F_t, I] on (dx_{t-1}, dx_t)."""
+        """(M) for every step: J = [-F_t, I] on (dx_{t-1}, dx_t).
+
+        With first-estimate Jacobians, F's yaw column is the displacement between
+        the two poses' first estimates, perp(p_t - p_{t-1}), instead of the model's
+        perp(f(xbar_{t-1}) - xbar_{t-1}): then a rotation of every pose and
+        landmark stays in the null space of every factor (FEJ, Huang, Mourikis &
+        Roumeliotis 2008), and the linearised system gains no false information
+        about the map's orientation, which nothing but the first pose observes.
+        """
         F = np.stack([s.F for s in self.segment])                            # (K, 3, 3)
+        if self.first_estimates:
+            firsts = np.stack([self.key_first] + [s.pose for s in self.segment])
+            step = np.diff(firsts[:, :2], axis=0)
+            F = F.copy()
+            F[:, 0, 2], F[:, 1, 2] = -step[:, 1], step[:, 0]
         W = np.stack([s.W for s in self.segment])
         c = np.stack([s.c for s in self.segment])
         J = np.concatenate([-F, np.broadcast_to(np.eye(POSE_DIM), F.shape)], axis=-1)   # (K, 3, 6)
@@ -155,10 +176,22 @@ class ObservedInformation:
         rows = np.concatenate([s.rows for _, s in steps])
         y = np.concatenate([s.y for _, s in steps])
         precision = np.concatenate([s.precision for _, s in steps])
-        J, target = observation_factor(poses, theta[rows], y, self.sensor)
+        J, target = observation_factor(poses, self._linearisation_points(theta)[rows], y, self.sensor,
+                                       now=theta[rows])
         index = np.concatenate([POSE_DIM * step_of[:, None] + np.arange(POSE_DIM),
                                 first_landmark + 2 * rows[:, None] + np.arange(2)], axis=1)
         _scatter(info, vector, index, J, precision, target)
+
+    def _linearisation_points(self, theta: np.ndarray) -> np.ndarray:
+        """Where each landmark's Jacobians are taken: its first estimate (FEJ), renewed
+        when the landmark has moved farther than ``relinearize_threshold`` from it;
+        the current estimate without first-estimate Jacobians."""
+        if not self.first_estimates:
+            return theta
+        first = self.landmark_first
+        renew = np.isnan(first[:, 0]) | (np.linalg.norm(theta - first, axis=1) > self.relinearize_threshold)
+        first[renew] = theta[renew]
+        return first
 
     # ------------------------------------------------------------ solve
     def solve(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -195,13 +228,19 @@ class ObservedInformation:
             return None
 
 
-def observation_factor(poses: np.ndarray, landmarks: np.ndarray, y: np.ndarray, sensor: SensorConfig):
-    """J (P, 2, 5) = [H_x, H_l] and target (P, 2) = ytilde + H_l thetabar of (O)."""
+def observation_factor(poses: np.ndarray, landmarks: np.ndarray, y: np.ndarray, sensor: SensorConfig,
+                       now: np.ndarray | None = None):
+    """J (P, 2, 5) = [H_x, H_l] and target (P, 2) = ytilde + H_l thetabar of (O).
+
+    Jacobians at ``landmarks``; the residual ytilde and thetabar at ``now``
+    (default the same points), so first-estimate Jacobians keep current residuals.
+    """
+    now = landmarks if now is None else now
     sensor_pose = sensor_poses(poses, sensor)
-    ytilde = innovation(y.copy(), predict_observation(sensor_pose, landmarks))
+    ytilde = innovation(y.copy(), predict_observation(sensor_pose, now))
     H_l = landmark_jacobian(sensor_pose, landmarks)
     H_x = pose_jacobian(poses, landmarks, sensor)
-    target = ytilde + np.einsum("pij,pj->pi", H_l, landmarks)
+    target = ytilde + np.einsum("pij,pj->pi", H_l, now)
     return np.concatenate([H_x, H_l], axis=-1), target
 
 

@@ -106,8 +106,10 @@ _CORE = {
                   "information: poses integrated out of the joint system).", None),
     "em.segment_length": ("Observed M-step: filter steps per segment whose poses are integrated out.",
                           (1, 100000)),
-    "em.relinearize_threshold": ("Observed M-step: re-linearise a landmark's factors when it moved "
-                                 "more than this (m).", (0.0, 1000.0)),
+    "em.relinearize_threshold": ("Observed M-step: a landmark farther than this (m) from its first "
+                                 "estimate gets new Jacobians for its next factors.", (0.0, 1000.0)),
+    "em.first_estimate_jacobians": ("Observed M-step: Jacobians at each variable's first estimate, so the "
+                                    "map's orientation gains no false information (FEJ).", None),
     "association.gate_probability": ("Chi-square(2) probability of the association gate, in (0, 1).",
                                      (0.0, 1.0)),
     "association.new_landmark_probability": ("Outside this wider gate of every landmark an unknown-id "
