@@ -125,7 +125,9 @@ def main(argv=None) -> int:
     node_cmd = [sys.executable, "-m", "online_em_slam.ros.node", "--ros-args", "--params-file", str(params),
                 "-p", "use_sim_time:=true", "-p", f"filter.seed:={args.seed}",
                 "-p", f"initial_pose.x:={initial.x:.9f}", "-p", f"initial_pose.y:={initial.y:.9f}",
-                "-p", f"initial_pose.yaw:={initial.yaw:.12f}", "-p", "publish_particles:=false"]
+                "-p", f"initial_pose.yaw:={initial.yaw:.12f}", "-p", "publish_particles:=false",
+                # The trajectory error is computed from ~/path: publish every kept pose, not a decimation.
+                "-p", "path_publish_max_poses:=20000"]
     print(f"[2/6] starting the node (ROS_DOMAIN_ID={domain}): {' '.join(node_cmd[1:])}", flush=True)
     node_proc = subprocess.Popen(node_cmd, stdout=node_log, stderr=subprocess.STDOUT, env=env)
 
