@@ -53,6 +53,46 @@ def test_node_parameter_build_refuses_with_the_parameter_name(name, value):
         build({name: value})
 
 
+def _hostile_values(default):
+    if isinstance(default, list):
+        n = len(default)
+        return [[], [1.0], [1.0, 1.0], [math.nan] * n, [math.inf] * n, [-1.0] * n, [0.0] * n, [1e300] * n,
+                default + [0.0]]
+    if isinstance(default, int):
+        return [0, -1, 1, 2 ** 31 - 1, 2 ** 62]
+    return [math.nan, math.inf, -math.inf, 0.0, -1.0, 1e-300, 1e300]
+
+
+def test_every_accepted_core_parameter_value_survives_a_reset_and_steps():
+    """Fuzz every numeric core parameter with hostile values: each is refused by
+    build() (what the node's set-parameters callback runs) or the estimator built
+    from it resets and runs; none is accepted and then crashes (defect 3)."""
+    from online_em_slam.core.types import Observations
+    from online_em_slam.ros.params import core_specs
+    tried = accepted = 0
+    for spec in core_specs():
+        if isinstance(spec.default, (bool, str)):
+            continue
+        for value in _hostile_values(spec.default):
+            tried += 1
+            values = {spec.name: value} if spec.name == "filter.num_particles" else {
+                spec.name: value, "filter.num_particles": 5}
+            try:
+                config, _ = build(values)
+            except ParameterError:
+                continue
+            if config.filter.num_particles > 1000:
+                continue
+            accepted += 1
+            slam = OnlineEMSlam(config)
+            slam.reset((0.0, 0.0, 0.0))
+            for k in range(4):
+                slam.add_odometry(0.1 * k, np.array([0.1 * k, 0.0, 0.0]))
+                slam.add_observations(0.1 * k + 0.05, Observations([5.0, 7.0], [0.1, -0.3], [1, -1]))
+            assert np.all(np.isfinite(slam.pose().mean)), (spec.name, value)
+    assert tried > 200 and 0 < accepted < tried
+
+
 def test_every_accepted_initial_pose_std_survives_a_reset():
     config, _ = build({"filter.initial_pose_std": [0.5, 0.5, 0.1], "filter.num_particles": 10})
     slam = OnlineEMSlam(config)

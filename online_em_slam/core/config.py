@@ -19,6 +19,9 @@ EM_ALGORITHMS = ("online", "block", "block_averaged")
 M_STEPS = ("complete", "observed")
 
 
+MIN_JITTER = 1e-9            # smallest motion jitter std (m, rad); see MotionConfig.validate
+
+
 def _check_range(name: str, value: float, low: float, high: float,
                  low_open: bool = False, high_open: bool = False) -> None:
     try:
@@ -96,8 +99,10 @@ class MotionConfig:
                      "odometry_rotation_per_meter"):
             _check_range(f"{prefix}.{name}", getattr(self, name), 0.0, 100.0)
         _check_range(f"{prefix}.noise_reference_period", self.noise_reference_period, 0.0, 100.0, low_open=True)
-        _check_range(f"{prefix}.position_jitter", self.position_jitter, 0.0, 10.0, low_open=True)
-        _check_range(f"{prefix}.heading_jitter", self.heading_jitter, 0.0, 1.0, low_open=True)
+        # The jitter keeps the step covariance positive definite: squared, a std of 1e-300
+        # underflows to 0 and the Cholesky factorisation of the next step fails.
+        _check_range(f"{prefix}.position_jitter", self.position_jitter, MIN_JITTER, 10.0)
+        _check_range(f"{prefix}.heading_jitter", self.heading_jitter, MIN_JITTER, 1.0)
         _check_range(f"{prefix}.max_step", self.max_step, 0.0, 3600.0, low_open=True)
         _check_range(f"{prefix}.max_prediction_interval", self.max_prediction_interval, 0.0, 3600.0, low_open=True)
 

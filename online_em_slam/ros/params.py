@@ -69,9 +69,9 @@ _CORE = {
                                             (0.0, 100.0)),
     "motion.odometry_rotation_per_meter": ("Odometry model: rotation noise std (rad) per metre driven.",
                                            (0.0, 100.0)),
-    "motion.position_jitter": ("Position jitter std (m) added per step, > 0 (keeps particles diverse).",
-                               (0.0, 10.0)),
-    "motion.heading_jitter": ("Heading jitter std (rad) added per step, > 0.", (0.0, 1.0)),
+    "motion.position_jitter": ("Position jitter std (m) added per step, >= 1e-9 (keeps particles diverse "
+                               "and the step covariance positive definite).", (1e-9, 10.0)),
+    "motion.heading_jitter": ("Heading jitter std (rad) added per step, >= 1e-9.", (1e-9, 1.0)),
     "motion.max_step": ("Longest motion step integrated at once (s), > 0; longer gaps are clipped "
                         "and counted (large_time_step_clipped).", (0.0, 3600.0)),
     "motion.max_prediction_interval": ("A filter step without observations runs after this many seconds "
