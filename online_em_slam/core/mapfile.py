@@ -235,7 +235,9 @@ def _read_arrays(path: str, max_landmarks: int) -> dict[str, np.ndarray]:
         arrays = {"version": _read_member(archive, "version", None, max_landmarks)}
         _check_version(arrays["version"])      # a file of another version: say so, not "wrong shape"
         arrays["theta"] = _read_member(archive, "theta", None, max_landmarks)
-        m = arrays["theta"].shape[0] if arrays["theta"].ndim else None
+        if arrays["theta"].ndim != 2 or arrays["theta"].shape[1] != 2:     # M comes from theta: check it first
+            raise MapFileError(f"theta has shape {arrays['theta'].shape}, expected (M, 2)")
+        m = arrays["theta"].shape[0]
         for name in (*ROW_FIELDS, "pose"):
             if name not in arrays:
                 arrays[name] = _read_member(archive, name, m, max_landmarks)
