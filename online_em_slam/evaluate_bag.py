@@ -189,8 +189,10 @@ def summary_line(metrics: dict) -> str:
     parts = ["evaluate:"]
     lm, tr = metrics.get("landmarks"), metrics.get("trajectory")
     if lm:
+        split = (f" (shape {fmt(lm['shape_error'])}, frame {fmt(lm['frame_error'])})"
+                 if "shape_error" in lm else "")
         parts.append(f"landmarks {lm['n_matched']}/{lm['n_true']} mapped, {lm['n_spurious']} spurious, "
-                     f"RMSE {fmt(lm['rmse'])} m;")
+                     f"RMSE {fmt(lm['rmse'])} m{split};")
     if tr:
         parts.append(f"trajectory RMSE {fmt(tr['rmse'])} m (median {fmt(tr['median'])}, max {fmt(tr['max'])});")
     parts.append(f"{metrics.get('n_landmarks', 0)} landmarks ({metrics.get('n_confirmed_landmarks', 0)} "
