@@ -70,3 +70,22 @@ def test_setup_installs_launch_rviz_config_and_console_tools():
     scripts = {s.split("=")[0].strip() for s in dist.entry_points["console_scripts"]}
     assert {"online-em-slam-record", "online-em-slam-topic", "online-em-slam", "online-em-slam-replay",
             "online-em-slam-convert"} <= scripts
+
+
+def test_tf2_msgs_builder_sources_and_path_fix(tmp_path):
+    """online_em_slam.ros.tf writes the TFMessage package and repairs the wheels' CMake exports
+    (the build itself, cmake + ninja, is verified by hand: README)."""
+    import sysconfig
+
+    from online_em_slam.ros import tf
+    src = tf.write_sources(tmp_path / "work")
+    assert (src / "msg" / "TFMessage.msg").read_text().strip() == "geometry_msgs/TransformStamped[] transforms"
+    assert "rosidl_generate_interfaces" in (src / "CMakeLists.txt").read_text()
+    cmake = tmp_path / "prefix" / "share" / "geometry_msgs" / "cmake" / "export.cmake"
+    cmake.parent.mkdir(parents=True)
+    cmake.write_text('INTERFACE_INCLUDE_DIRECTORIES "/opt/python/cp311-cp311/include/python3.11;'
+                     '/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include"\n')
+    assert tf.fix_exported_paths(tmp_path / "prefix") == 1
+    text = cmake.read_text()
+    assert "/opt/python" not in text and sysconfig.get_paths()["include"] in text
+    assert tf.fix_exported_paths(tmp_path / "prefix") == 0
