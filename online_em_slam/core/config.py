@@ -214,7 +214,7 @@ class EMConfig:
     block_initial_length: int = 20
     block_growth: float = 1.1
     inflate_with_map_uncertainty: bool = True
-    m_step: str = "complete"
+    m_step: str = "observed"
     segment_length: int = 10
     relinearize_threshold: float = 0.5
     first_estimate_jacobians: bool = True

@@ -194,7 +194,7 @@ class CompleteDataEM:
         return {"count": self.count, "inv_n": self.inv_n, "stats": self.stats, "spread": self.spread,
                 "avg_stats": self.avg_stats, "avg_count": self.avg_count}
 
-    def restore(self, arrays: dict[str, np.ndarray]) -> None:
+    def restore(self, arrays: dict[str, np.ndarray], theta: np.ndarray) -> None:
         """Continue from saved statistics; every particle restarts from the smoothed
         statistic, which is what the M-step used."""
         m = arrays["stats"].shape[0]

@@ -71,3 +71,10 @@ class MStep(Protocol):
 
     def map_covariances(self) -> np.ndarray:
         """Landmark covariances (M, 2, 2) reported with the map."""
+
+    def saved_arrays(self) -> dict[str, np.ndarray]:
+        """Per-landmark state for the map file (core/mapfile.py keys: count, inv_n,
+        stats, spread, avg_stats, avg_count)."""
+
+    def restore(self, arrays: dict[str, np.ndarray], theta: np.ndarray) -> None:
+        """Continue from a loaded map file's arrays (landmarks appended to empty state)."""

@@ -123,22 +123,29 @@ class ObservedInformation:
 
     def close_segment(self, theta: np.ndarray) -> None:
         """Linearise the buffered factors at (xbar_t, theta) and integrate out every
-        pose of the segment but its last, which becomes the key pose."""
+        pose of the segment but its last, which becomes the key pose.
+
+        Only the old key pose couples to the whole map, and the segment's poses see
+        only the landmarks S observed in it: the factors go into a small system over
+        [key, x_1..x_K, theta_S]; integrating [key, x_1..x_{K-1}] out changes the
+        stored map block by a rank-3 term plus terms on x_K and theta_S
+        (:func:`segment_schur`), O(M^2) with a small constant, not O((M + K)^3).
+        """
         if not self.segment:
             return
         k = len(self.segment)
-        m = theta.shape[0]
-        size = POSE_DIM * (k + 1) + 2 * m
-        info = np.zeros((size, size))
-        vector = np.zeros(size)
-        stored = np.concatenate([np.arange(POSE_DIM), POSE_DIM * (k + 1) + np.arange(2 * m)])
-        info[np.ix_(stored, stored)] = self.info
-        vector[stored] = self.vector
-        self._add_motion_factors(info, vector)
-        self._add_observation_factors(info, vector, theta, first_landmark=POSE_DIM * (k + 1))
-        eliminated = np.arange(POSE_DIM * k)
-        kept = np.arange(POSE_DIM * k, size)
-        self.info, self.vector = marginalize(info, vector, kept, eliminated)
+        seen = np.unique(np.concatenate([s.rows for s in self.segment]))
+        n_pose = POSE_DIM * (k + 1)
+        local = np.zeros((n_pose + 2 * seen.size,) * 2)
+        local_vector = np.zeros(local.shape[0])
+        self._add_motion_factors(local, local_vector)
+        self._add_observation_factors(local, local_vector, theta, n_pose, seen)
+        local[:POSE_DIM, :POSE_DIM] += self.info[:POSE_DIM, :POSE_DIM]
+        local_vector[:POSE_DIM] += self.vector[:POSE_DIM]
+        lm = POSE_DIM + 2 * seen[:, None] + np.arange(2)
+        small = np.concatenate([np.arange(POSE_DIM), lm.ravel()])      # x_K, theta_S in the new system
+        self.info, self.vector = segment_schur(self.info, self.vector, local, local_vector,
+                                               POSE_DIM * k, small)
         self.key_pose = self.segment[-1].pose.copy()
         self.key_first = self.key_pose.copy()
         self.segment = []
@@ -166,8 +173,9 @@ class ObservedInformation:
         index = POSE_DIM * np.arange(len(self.segment))[:, None] + np.arange(2 * POSE_DIM)
         _scatter(info, vector, index, J, W, c)
 
-    def _add_observation_factors(self, info, vector, theta, first_landmark: int) -> None:
-        """(O) for every observation: J = [H_x, H_l] on (dx_t, theta_k)."""
+    def _add_observation_factors(self, info, vector, theta, first_landmark: int, seen: np.ndarray) -> None:
+        """(O) for every observation: J = [H_x, H_l] on (dx_t, theta_k); landmark k sits
+        at ``first_landmark + 2 * (its position in seen)``."""
         steps = [(t, s) for t, s in enumerate(self.segment, start=1) if s.rows.size]
         if not steps:
             return
@@ -179,7 +187,8 @@ class ObservedInformation:
         J, target = observation_factor(poses, self._linearisation_points(theta)[rows], y, self.sensor,
                                        now=theta[rows])
         index = np.concatenate([POSE_DIM * step_of[:, None] + np.arange(POSE_DIM),
-                                first_landmark + 2 * rows[:, None] + np.arange(2)], axis=1)
+                                first_landmark + 2 * np.searchsorted(seen, rows)[:, None] + np.arange(2)],
+                               axis=1)
         _scatter(info, vector, index, J, precision, target)
 
     def _linearisation_points(self, theta: np.ndarray) -> np.ndarray:
@@ -257,6 +266,47 @@ def _scatter(info: np.ndarray, vector: np.ndarray, index: np.ndarray, J: np.ndar
     JtW = np.swapaxes(J, -1, -2) @ W
     np.add.at(info, (index[:, :, None], index[:, None, :]), JtW @ J)
     np.add.at(vector, index, np.einsum("fij,fj->fi", JtW, target))
+
+
+def segment_schur(info: np.ndarray, vector: np.ndarray, local: np.ndarray, local_vector: np.ndarray,
+                  n_eliminated: int, small: np.ndarray):
+    """The stored system over [x_K; theta] after integrating out e = [key, x_1..x_{K-1}].
+
+    ``info``/``vector``: stored system over [key; theta]; ``local``: the segment's
+    factors (plus the stored key block) over [e, x_K, theta_S]; ``small``: where
+    x_K and theta_S sit in the result.  With B_ee = local[e, e], P the stored
+    key-map coupling and Q = local[e, small]:
+        B_re B_ee^-1 B_er = P^T M P + P^T N Q + Q^T N^T P + Q^T B_ee^-1 Q,
+    M = (B_ee^-1)[key, key], N = (B_ee^-1 Q)[key]: a rank-3 update of the whole
+    map block and small blocks on x_K and theta_S.
+    """
+    e = n_eliminated
+    B_ee, Q = local[:e, :e], local[:e, e:]
+    rhs = np.zeros((e, POSE_DIM + Q.shape[1] + 1))
+    rhs[:POSE_DIM, :POSE_DIM] = np.eye(POSE_DIM)
+    rhs[:, POSE_DIM:-1] = Q
+    rhs[:, -1] = local_vector[:e]
+    try:
+        W = cho_solve(cho_factor(B_ee, lower=True), rhs)
+    except LinAlgError:
+        W = np.linalg.lstsq(B_ee, rhs, rcond=None)[0]
+    M, N, w = W[:POSE_DIM, :POSE_DIM], W[:POSE_DIM, POSE_DIM:-1], W[:, -1]
+    M = 0.5 * (M + M.T)
+    P = info[:POSE_DIM].copy()
+    P[:, :POSE_DIM] = 0.0                                    # the new x_K has no stored coupling
+    PtM = P.T @ M
+    new = info.copy()
+    new[:POSE_DIM], new[:, :POSE_DIM] = 0.0, 0.0
+    new -= PtM @ P
+    cross = P.T @ N                                          # (3 + 2M, n_small)
+    new[:, small] -= cross
+    new[small] -= cross.T
+    new[np.ix_(small, small)] += local[e:, e:] - Q.T @ W[:, POSE_DIM:-1]
+    new_vector = vector.copy()
+    new_vector[:POSE_DIM] = 0.0
+    new_vector -= P.T @ w[:POSE_DIM]
+    new_vector[small] += local_vector[e:] - Q.T @ w
+    return new, new_vector
 
 
 def marginalize(info: np.ndarray, vector: np.ndarray, kept: np.ndarray, eliminated: np.ndarray):

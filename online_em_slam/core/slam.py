@@ -76,8 +76,11 @@ class OnlineEMSlam:
     """
 
     def __init__(self, config: SlamConfig | None = None, initial_pose=(0.0, 0.0, 0.0),
-                 stamp: float | None = None) -> None:
+                 stamp: float | None = None, m_step_factory=None) -> None:
+        """``m_step_factory(config, initial_pose, rng) -> MStep`` replaces the piece
+        chosen by ``em.m_step`` (baselines plug their map update in here)."""
         self.config = (config or SlamConfig()).validate()
+        self._m_step_factory = m_step_factory or make_m_step
         self._gates = Gates.from_config(self.config.association)
         self.drops: Counter[str] = Counter()
         self.reset(initial_pose, stamp)
@@ -109,7 +112,7 @@ class OnlineEMSlam:
         self._step = 0
         self._ess = float(n)
         self._map = LandmarkTable()
-        self._m_step: MStep = make_m_step(cfg, pose, self._rng)
+        self._m_step: MStep = self._m_step_factory(cfg, pose, self._rng)
 
     def start_new_pass(self, initial_pose=None, stamp: float | None = None) -> None:
         """Prepare another pass over the same data: batch EM by repeated passes.
@@ -538,10 +541,7 @@ class OnlineEMSlam:
         self._map.n_obs[:] = arrays["n_obs"]
         self._map.confirmed[:] = arrays["confirmed"]
         self._map.created[:] = np.zeros(m, dtype=np.int64)
-        if isinstance(self._m_step, ObservedInformationEM):
-            self._m_step.restore(arrays, self._map.theta)
-        else:
-            self._m_step.restore(arrays)
+        self._m_step.restore(arrays, self._map.theta)
 
     def save_map(self, path: str) -> None:
         """Write map, statistics, counts and pose atomically (core/mapfile.py).
