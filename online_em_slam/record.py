@@ -137,6 +137,7 @@ def record(args, log) -> dict:
     executor = _executor(context, node)
     plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[args.storage]
     started = time.monotonic()
+    recorder = None
     try:
         with Writer(Path(args.output), version=9, storage_plugin=plugin) as writer:
             recorder = Recorder(node, writer, _topics(args), log)

@@ -229,8 +229,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    if getattr(args, "topic", "/").startswith("/") is False:
-        args.topic = "/" + args.topic
+    if hasattr(args, "topic"):
+        args.topic = "/" + args.topic.lstrip("/")      # relative names as ros2 topic takes them
     session = _Session()
     try:
         return args.func(args, session)
