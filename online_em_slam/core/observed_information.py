@@ -218,6 +218,10 @@ class ObservedInformation:
         dx_old = dx_new + shift, so the vector loses info[:, key] shift."""
         self.vector = self.vector - self.info[:, :POSE_DIM] @ shift
         self.key_pose = self.key_pose + shift
+        if np.hypot(shift[0], shift[1]) > self.relinearize_threshold:
+            # After a large correction (a loop closure) the first estimate would put
+            # the whole shift into the next motion factor's yaw lever.
+            self.key_first = self.key_pose.copy()
 
     def landmark_covariances(self) -> np.ndarray | None:
         """Marginal covariances (M, 2, 2) of the map: diagonal blocks of info^-1."""
