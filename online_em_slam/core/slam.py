@@ -26,6 +26,7 @@ from .em_complete import CompleteDataEM
 from .em_observed import ObservedInformationEM
 from .em_step import FilterStepData, MStep
 from .landmarks import LandmarkTable
+from .noise_learning import NoiseLearner
 from .observation import (component_precision_weight, innovation, inv_det_2x2, inverse_observation,
                           landmark_jacobian, noise_covariance, noise_loglik, predict_observation,
                           sensor_poses)
@@ -113,6 +114,7 @@ class OnlineEMSlam:
         self._ess = float(n)
         self._map = LandmarkTable()
         self._m_step: MStep = self._m_step_factory(cfg, pose, self._rng)
+        self._noise = NoiseLearner(cfg)          # learned noise (noise_learning.py); configured until warm
 
     def start_new_pass(self, initial_pose=None, stamp: float | None = None) -> None:
         """Prepare another pass over the same data: batch EM by repeated passes.
@@ -172,22 +174,18 @@ class OnlineEMSlam:
         if not self._pending_dts:
             return
         controls, dts = np.array(self._pending_controls), np.array(self._pending_dts)
-        self._pred_mean, self._pred_cov = motion_models.integrate_segments(
-            self.config.motion, self._pred_mean, self._pred_cov, controls, dts)
-        self._pred_mean[:, 2] = wrap_angle(self._pred_mean[:, 2])
-        if self.config.em.m_step == "observed":
-            self._advance_track(controls, dts)
+        # The mean pose's own transition (f, F, Q: the observed M-step's
+        # linearisation track) rides along as one more row of the same call.
+        poses = np.vstack([self._pred_mean, self._track_pose])
+        covs = np.concatenate([self._pred_cov, self._track_cov[None]])
+        mean, cov, F = motion_models.integrate_segments(self.config.motion, poses, covs, controls, dts,
+                                                        with_jacobian=True)
+        mean[:, 2] = wrap_angle(mean[:, 2])
+        self._pred_mean, self._pred_cov = mean[:-1], cov[:-1]
+        self._track_pose, self._track_cov = mean[-1], cov[-1]
+        self._track_jacobian = F[-1] @ self._track_jacobian
         self._pending_controls.clear()
         self._pending_dts.clear()
-
-    def _advance_track(self, controls: np.ndarray, dts: np.ndarray) -> None:
-        """Carry the mean pose's own transition f, F, Q along with the particles'."""
-        mean, cov, F = motion_models.integrate_segments(
-            self.config.motion, self._track_pose[None], self._track_cov[None], controls, dts, with_jacobian=True)
-        self._track_pose = mean[0]
-        self._track_pose[2] = wrap_angle(self._track_pose[2])
-        self._track_cov = cov[0]
-        self._track_jacobian = F[0] @ self._track_jacobian
 
     def _advance_to(self, stamp: float) -> None:
         """Integrate the held control up to ``stamp`` (zero-order hold)."""
@@ -275,7 +273,7 @@ class OnlineEMSlam:
         report = report if report is not None else StepReport()
         self._flush_motion()
         ancestors, log_prior = self._select_ancestors()
-        trans_cov = self._pred_cov + motion_models.step_jitter(self.config.motion)
+        trans_cov = self._pred_cov * self._noise.motion_scale() + motion_models.step_jitter(self.config.motion)
         particles = sample_gaussians(self._pred_mean[ancestors], trans_cov[ancestors], self._rng)
         sensor = sensor_poses(particles, self.config.sensor)
         prior_weights, _ = normalize_log_weights(log_prior)
@@ -284,6 +282,7 @@ class OnlineEMSlam:
         log_w = log_prior + terms.log_likelihood
         weights = self._normalise(log_w)
         data = self._step_data(particles, weights, prior_weights, ancestors, trans_cov, rows, terms, sensor)
+        self._noise.update(data, self._map.n_obs[rows], self._m_step.covariances(rows))  # Sigma_k before y_t
         pose_correction = self._m_step.update(data, self._map)
         self._commit(particles, weights, pose_correction)
         report.n_associated = int(rows.size)
@@ -310,7 +309,7 @@ class OnlineEMSlam:
         if not rows.size:
             return ObservationTerms.empty(n)
         y = np.stack([obs.ranges[obs_idx], obs.bearings[obs_idx]], axis=-1)            # (P, 2)
-        R = noise_covariance(cfg.noise, obs.ranges[obs_idx],
+        R = noise_covariance(self._noise.noise_config(), obs.ranges[obs_idx],
                              None if obs.range_std is None else obs.range_std[obs_idx],
                              None if obs.bearing_std is None else obs.bearing_std[obs_idx])
         theta_bar = self._map.theta[rows]                                               # (P, 2)
@@ -318,9 +317,9 @@ class OnlineEMSlam:
                         predict_observation(sensor[:, None, :], theta_bar[None]))        # (N, P, 2)
         H = landmark_jacobian(sensor[:, None, :], theta_bar[None])                      # (N, P, 2, 2)
         log_likelihood = self._weighting_loglik(rows, nu, H, R)
-        _, resp = noise_loglik(cfg.noise, nu, np.broadcast_to(R, H.shape))
+        _, resp = noise_loglik(self._noise.noise_config(), nu, np.broadcast_to(R, H.shape))
         R_inv, _ = inv_det_2x2(R)
-        precision = R_inv[None] * component_precision_weight(cfg.noise, resp)[..., None, None]
+        precision = R_inv[None] * component_precision_weight(self._noise.noise_config(), resp)[..., None, None]
         self._map.n_obs[rows] += 1
         return ObservationTerms(y, R, nu, H, precision, log_likelihood)
 
@@ -338,7 +337,7 @@ class OnlineEMSlam:
         if cfg.em.inflate_with_map_uncertainty:
             cov = self._m_step.covariances(rows)
             S += H @ cov[None] @ np.swapaxes(H, -1, -2)
-        loglik, _ = noise_loglik(cfg.noise, nu, S)
+        loglik, _ = noise_loglik(self._noise.noise_config(), nu, S)
         return np.where(weighting[None, :], loglik, 0.0).sum(axis=1)
 
     def _normalise(self, log_w: np.ndarray) -> np.ndarray:
@@ -355,7 +354,7 @@ class OnlineEMSlam:
             transition_covs=trans_cov, rows=rows, y=terms.y, R=terms.R, sensor=sensor, nu=terms.nu,
             H=terms.H, precision=terms.precision, motion_mean=self._track_pose,
             motion_jacobian=self._track_jacobian,
-            motion_cov=self._track_cov + motion_models.step_jitter(self.config.motion))
+            motion_cov=self._track_cov * self._noise.motion_scale() + motion_models.step_jitter(self.config.motion))
 
     def _commit(self, particles, weights, pose_correction) -> None:
         """New anchors for the next transition, moved by the M-step's pose correction."""
@@ -452,7 +451,7 @@ class OnlineEMSlam:
         if positions.shape[0] < 2:
             return positions, obs_idx
         keep = np.ones(positions.shape[0], dtype=bool)
-        radius = 2.0 * self.config.noise.sigma_range
+        radius = 2.0 * self._noise.noise_config().sigma_range
         dist = np.linalg.norm(positions[:, None] - positions[None], axis=-1)
         for i in range(positions.shape[0]):
             if keep[i]:
@@ -466,7 +465,7 @@ class OnlineEMSlam:
         theta = self._map.theta
         if not theta.shape[0]:
             return np.zeros(0, dtype=int)
-        reach = self.config.sensor.max_range + 5.0 * self.config.noise.sigma_range + 5.0
+        reach = self.config.sensor.max_range + 5.0 * self._noise.noise_config().sigma_range + 5.0
         dist = np.hypot(theta[:, 0] - mean_sensor[0], theta[:, 1] - mean_sensor[1])
         return np.flatnonzero(dist < reach)
 
@@ -489,7 +488,7 @@ class OnlineEMSlam:
         map_cov = self._m_step.covariances(rows) + assoc.gate_position_std ** 2 * np.eye(2)
         spread = spread + H @ map_cov @ np.swapaxes(H, -1, -2)
         spread[:, 1, 1] += assoc.gate_heading_std ** 2
-        R = noise_covariance(self.config.noise, obs.ranges[unknown],
+        R = noise_covariance(self._noise.noise_config(), obs.ranges[unknown],
                              None if obs.range_std is None else obs.range_std[unknown],
                              None if obs.bearing_std is None else obs.bearing_std[unknown])
         return mean, spread[None] + R[:, None]
@@ -510,6 +509,14 @@ class OnlineEMSlam:
         mean = weighted_pose_mean(self._pred_mean, w)
         cov = weighted_pose_covariance(self._pred_mean, w, mean, self._pred_cov)
         return PoseEstimate(self._time, mean, cov)
+
+    def learned_noise(self) -> dict:
+        """Noise values learned online (noise_learning.py): estimates, counts, and whether in use."""
+        return self._noise.learned()
+
+    def learned_noise_parameters(self) -> dict:
+        """The noise in use as flat node parameters (noise.*, motion.* stds), for a parameter file."""
+        return self._noise.parameters()
 
     def particles(self) -> tuple[np.ndarray, np.ndarray]:
         """Particle poses (predicted to the last input stamp) and normalised weights."""
