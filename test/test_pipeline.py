@@ -163,7 +163,13 @@ def test_gap_detector_counts_lost_motion_messages():
     stamps = [0.025 * k for k in range(100) if k not in (40, 41, 42, 70)]
     lost = [gaps.observe(ODOMETRY, t) for t in stamps]
     assert sum(lost) == 4 and gaps.drops == Counter(odometry_lost=4)
-    assert gaps.observe(OBSERVATIONS, 100.0) == 0                  # observations may be irregular
+    # Sustained loss of every other message does not stretch the learnt period.
+    lost = [gaps.observe(ODOMETRY, 0.025 * k) for k in range(100, 300, 2)]
+    assert sum(lost) == 99
+    # A stream that is not regular (a detector publishing only what it sees) is never judged.
+    gaps = GapDetector((OBSERVATIONS,))
+    rng = np.random.default_rng(0)
+    assert sum(gaps.observe(OBSERVATIONS, t) for t in np.cumsum(rng.exponential(0.2, 200))) == 0
 
 
 def test_lost_odometry_loses_no_motion():

@@ -1,11 +1,14 @@
 """Loss detection in data time: a periodic stream with a hole lost messages.
 
 Message queues (a full KEEP_LAST history, a best-effort link) lose messages
-without telling the subscriber.  Odometry and control are periodic, so a gap
-much longer than the stream's usual period means messages were lost upstream;
-they are counted as ``<kind>_lost`` (the estimated number of missing messages).
-The usual period is the median of the recent steps, so a slow start or jitter
-does not count as loss.
+without telling the subscriber.  A stream whose first steps are regular
+(odometry and control at a fixed rate, a detector that reports every scan,
+empty or not) has a nominal period; a later step much longer than it means
+messages were lost upstream, counted as ``<kind>_lost`` (the estimated number
+of missing messages).  The nominal period is learnt from the first steps and
+afterwards only from steps close to it, so sustained loss does not stretch it;
+a stream that is not regular (a detector publishing only when it sees
+something) is never judged.
 """
 from __future__ import annotations
 
@@ -15,10 +18,34 @@ import numpy as np
 
 from .inputs import KIND_NAME
 
-HISTORY = 64            # recent steps kept for the period estimate
-MIN_STEPS = 8           # steps seen before gaps are judged
+HISTORY = 64            # steps kept for the period estimate
+MIN_STEPS = 16          # steps seen before a stream is judged regular or not
+REGULAR = 1.3           # regular: the 90th percentile step is within this factor of the 10th
 GAP_FACTOR = 1.8        # a step longer than this many periods is a gap
+BAND = 0.3              # steps within +-30 % of the period keep refining it
 REESTIMATE = 16         # the period is re-estimated every this many steps (a median per message is costly)
+
+
+class _Stream:
+    def __init__(self) -> None:
+        self.last: float | None = None
+        self.steps: deque = deque(maxlen=HISTORY)
+        self.period: float | None = None        # None: still learning, or not regular
+        self.regular: bool | None = None
+        self.since = 0
+        self.refused = 0                         # messages that came but could not be placed
+
+    def learn(self, step: float) -> None:
+        self.steps.append(step)
+        self.since += 1
+        if self.regular is None and len(self.steps) >= MIN_STEPS:
+            p10, p50, p90 = np.percentile(self.steps, (10, 50, 90))
+            self.regular = bool(p10 > 0 and p90 <= REGULAR * p10)
+            self.period = float(p50) if self.regular else None
+            self.since = 0
+        elif self.period is not None and self.since >= REESTIMATE:
+            self.period = float(np.median(self.steps))
+            self.since = 0
 
 
 class GapDetector:
@@ -28,41 +55,34 @@ class GapDetector:
         self.reset()
 
     def reset(self) -> None:
-        self._last: dict[int, float] = {}
-        self._steps: dict[int, deque] = {k: deque(maxlen=HISTORY) for k in self.kinds}
-        self._period: dict[int, float | None] = {k: None for k in self.kinds}
-        self._since: dict[int, int] = {k: 0 for k in self.kinds}
-        self._refused: dict[int, int] = {k: 0 for k in self.kinds}
+        self._streams = {k: _Stream() for k in self.kinds}
+
+    def period(self, kind: int) -> float | None:
+        stream = self._streams.get(kind)
+        return None if stream is None else stream.period
 
     def arrived_unusable(self, kind: int) -> None:
         """A message of ``kind`` came but its stamp cannot be placed (an outlier): not lost."""
-        if kind in self._refused:
-            self._refused[kind] += 1
-
-    def period(self, kind: int) -> float | None:
-        return self._period.get(kind)
-
-    def _note_step(self, kind: int, step: float) -> None:
-        steps = self._steps[kind]
-        steps.append(step)
-        self._since[kind] += 1
-        if len(steps) >= MIN_STEPS and (self._period[kind] is None or self._since[kind] >= REESTIMATE):
-            self._period[kind] = float(np.median(steps))
-            self._since[kind] = 0
+        if kind in self._streams:
+            self._streams[kind].refused += 1
 
     def observe(self, kind: int, stamp: float) -> int:
-        """Note an in-order input; returns the number of messages judged lost just before it."""
-        if kind not in self._steps:
+        """Note an input; returns the number of messages judged lost just before it."""
+        stream = self._streams.get(kind)
+        if stream is None:
             return 0
-        last = self._last.get(kind)
-        self._last[kind] = stamp
+        last, stream.last = stream.last, (stamp if stream.last is None else max(stream.last, stamp))
         if last is None or stamp <= last:
             return 0
-        refused, self._refused[kind] = self._refused[kind], 0
-        step = stamp - last
-        period = self.period(kind)
-        self._note_step(kind, step)
-        if period is None or period <= 0 or step <= GAP_FACTOR * period:
+        step, refused, stream.refused = stamp - last, stream.refused, 0
+        period = stream.period
+        if period is None:
+            if stream.regular is None:
+                stream.learn(step)
+            return 0
+        if abs(step - period) <= BAND * period:
+            stream.learn(step)
+        if step <= GAP_FACTOR * period:
             return 0
         lost = int(round(step / period)) - 1 - refused
         if lost > 0:

@@ -35,7 +35,7 @@ class InputPath:
         self.streams = tuple(streams)
         self.restart_on_jump_back = restart_on_jump_back
         self.guard = StampGuard(jump_threshold, confirmations, self.drops)
-        self.gaps = GapDetector(tuple(k for k in self.streams if k in MOTION_KINDS), self.drops)
+        self.gaps = GapDetector(tuple(set(MOTION_KINDS) | set(self.streams)), self.drops)
         self.sequencer = Sequencer(self.streams, silence, self.drops)
 
     def reset(self) -> None:
@@ -75,6 +75,11 @@ class InputPath:
             self.gaps.observe(kind, float(stamp))      # a message that came is not a lost one
             self.sequencer.heard(kind, float(stamp), wall)
         return self.sequencer.release(wall)
+
+    def watch(self, kind: int, stamp: float) -> None:
+        """A periodic stream that is not merged (odometry while control drives the motion): count its losses."""
+        if math.isfinite(stamp):
+            self.gaps.observe(kind, float(stamp))
 
     def _sequence(self, item: Input, wall: float) -> list[Input]:
         self.gaps.observe(item.kind, item.stamp)

@@ -54,7 +54,7 @@ from visualization_msgs.msg import MarkerArray
 
 from ..core.angles import wrap_angle
 from ..core.slam import OnlineEMSlam
-from ..pipeline import CONTROL, KIND_NAME, OBSERVATIONS, ODOMETRY, Feeder, InputPath, LoadMonitor
+from ..pipeline import CONTROL, KIND_NAME, OBSERVATIONS, ODOMETRY, Fed, Feeder, InputPath, LoadMonitor
 from ..core.mapfile import confined_path
 from . import conversions as conv
 from .path_history import PathHistory
@@ -282,6 +282,7 @@ class OnlineEmSlamNode(Node):
             else:
                 self._inputs += 1            # odometry only places map -> odom and ~/pose
                 self._window_inputs += 1
+                self._inputs_path.watch(ODOMETRY, stamp)
             self._publish_odometry_pose(stamp, pose)
             self._load.add(time.monotonic(), time.monotonic() - started)
 
@@ -341,22 +342,35 @@ class OnlineEmSlamNode(Node):
         self._use(pushed.released)
 
     def _use(self, released: list) -> None:
-        """Feed released inputs to the estimator in order; then publish once."""
+        """Feed released inputs to the estimator in order; then publish once.
+
+        After motion alone the estimate and the odometry move together: map -> odom
+        keeps its value and ~/pose follows the odometry, so the estimate is read
+        (a pose() costs a motion integration) only after an observation update, while
+        map -> odom is not yet known, or when no odometry arrives to carry ~/pose.
+        """
         if not released:
             return
-        used = False
+        used = observed = False
         for item in released:
             try:
-                used |= self._feed(item)
+                fed = self._feed(item)
+                used |= fed.moved or fed.report is not None
+                observed |= fed.report is not None
             except Exception as error:  # noqa: BLE001 - bad input must never stop the node
                 self._drop("internal_error")
                 self.get_logger().error(f"failed to process {KIND_NAME[item.kind]} at {item.stamp:.3f}: {error!r}",
                                         throttle_duration_sec=self._settings.warn_throttle_period)
             self._latencies.append(time.monotonic() - item.wall)
-        if used:
+        if observed or (used and (self._map_to_odom is None or not self._odometry_flows())):
             self._after_update()
 
-    def _feed(self, item) -> bool:
+    def _odometry_flows(self) -> bool:
+        """Odometry arrived within the last second of estimator time (it then carries ~/pose)."""
+        stamp = self._slam.last_stamp
+        return bool(self._odom_history) and stamp is not None and self._odom_history[-1][0] >= stamp - 1.0
+
+    def _feed(self, item) -> Fed:
         load = self._load.load(time.monotonic()) if item.kind == OBSERVATIONS else 0.0
         self.max_load = max(self.max_load, load)
         shed = load > self._load.limit
@@ -366,7 +380,7 @@ class OnlineEmSlamNode(Node):
             self._path.append(t, (x, y, yaw))         # compact; messages are built at publish time
         report = fed.report
         if report is None:
-            return fed.moved or fed.trajectory_point is not None
+            return fed
         if report.dropped:
             self.get_logger().warning("observations dropped by the estimator: "
                                       + ", ".join(f"{k}={v}" for k, v in sorted(report.dropped.items())),
@@ -377,7 +391,7 @@ class OnlineEmSlamNode(Node):
         self._window_updates += 1
         self._map_dirty = True
         self._publish_particles()
-        return True
+        return fed
 
     # ------------------------------------------------------------------ outputs
     def _after_update(self) -> None:
@@ -508,6 +522,7 @@ class OnlineEmSlamNode(Node):
                 "inputs": self._inputs,
                 "queued_inputs": len(self._inputs_path),
                 "load": self._load.load(now),
+                "load_max": self.max_load,
                 "paused": self._paused,
                 "resets": self._resets,
                 "last_stamp": self._slam.last_stamp if self._slam.last_stamp is not None else -1.0,
