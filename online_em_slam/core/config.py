@@ -272,6 +272,75 @@ class AssociationConfig:
         _check_range(f"{prefix}.gate_heading_std", self.gate_heading_std, 0.0, 3.2)
 
 
+LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "range_growth", "motion_scale")
+
+
+@dataclass
+class NoiseLearningConfig:
+    """Online EM estimation of the noise parameters (ALGORITHM.md section 7, core/noise_learning.py).
+
+    learn: the quantities estimated, a subset of ``LEARNABLE_NOISE``: ``range``
+        (sigma_range), ``bearing`` (sigma_bearing), ``correlation`` (rho),
+        ``mixture`` (weights and outlier scales; only with ``noise.model: mixture``),
+        ``range_growth`` (sigma_r(r) = sigma_range + range_growth r; not by
+        default: without range-dependent noise it trades off against
+        sigma_range) and ``motion_scale`` (one factor on the whole motion noise
+        covariance).
+    step_size_exponent: gamma_n = n^-exponent (n counts observations, or filter
+        steps for the motion scale); below 1 the statistics computed under the
+        first, wrong noise values are forgotten.
+    warmup_observations / warmup_steps: the learned observation noise is used
+        after this many observations, the motion scale after this many windows.
+    motion_window: filter steps whose motion residuals are compounded into one
+        statistic of the motion scale (one step's motion noise is small next to
+        the pose's uncertainty; L steps' is not).
+    min_landmark_observations: observations of a landmark seen fewer times
+        (this one included) are not used: its estimate is still the inverted
+        first observation and its residual says little about R.
+    *_limits: (floor, ceiling) of each learned value; correlation_limit bounds
+        |rho| / (sigma_range sigma_bearing); mixture_weight_limits bound each
+        outlier component's weight.
+    """
+
+    enabled: bool = False
+    learn: tuple[str, ...] = ("range", "bearing", "correlation", "mixture", "motion_scale")
+    step_size_exponent: float = 0.7
+    warmup_observations: int = 200
+    warmup_steps: int = 50
+    motion_window: int = 10
+    min_landmark_observations: int = 5
+    sigma_range_limits: tuple[float, float] = (0.001, 10.0)
+    sigma_bearing_limits: tuple[float, float] = (0.0001, 0.5)
+    range_growth_limits: tuple[float, float] = (0.0, 0.5)
+    correlation_limit: float = 0.9
+    mixture_weight_limits: tuple[float, float] = (0.001, 0.5)
+    mixture_scale_limits: tuple[float, float] = (2.0, 1000.0)
+    motion_scale_limits: tuple[float, float] = (0.01, 100.0)
+
+    def validate(self, prefix: str = "noise_learning") -> None:
+        if isinstance(self.learn, str):
+            raise ValueError(f"{prefix}.learn = {self.learn!r} must be a list of names of {', '.join(LEARNABLE_NOISE)}")
+        for name in tuple(self.learn):
+            _check_choice(f"{prefix}.learn", name, LEARNABLE_NOISE)
+        _check_range(f"{prefix}.step_size_exponent", self.step_size_exponent, 0.5, 1.0, low_open=True)
+        _check_range(f"{prefix}.warmup_observations", self.warmup_observations, 0, 10 ** 9)
+        _check_range(f"{prefix}.warmup_steps", self.warmup_steps, 0, 10 ** 9)
+        _check_range(f"{prefix}.motion_window", self.motion_window, 1, 1000)
+        _check_range(f"{prefix}.min_landmark_observations", self.min_landmark_observations, 1, 10 ** 6)
+        _check_range(f"{prefix}.correlation_limit", self.correlation_limit, 0.0, 0.99)
+        # (name, lowest floor, highest ceiling, floor may be 0): the ceilings keep the
+        # learned values inside what ObservationNoiseConfig / MotionConfig accept.
+        for name, low, high, low_open in (("sigma_range_limits", 0.0, 100.0, True),
+                                          ("sigma_bearing_limits", 0.0, math.pi, True),
+                                          ("range_growth_limits", 0.0, 1.0, False),
+                                          ("mixture_weight_limits", 0.0, 0.5, True),
+                                          ("mixture_scale_limits", 1.0, 1e6, True),
+                                          ("motion_scale_limits", 0.0, 1e4, True)):
+            floor, ceiling = _check_length(f"{prefix}.{name}", getattr(self, name), 2, " (floor, ceiling)")
+            _check_range(f"{prefix}.{name}", floor, low, high, low_open=low_open)
+            _check_range(f"{prefix}.{name}", ceiling, float(floor), high)
+
+
 @dataclass
 class SlamConfig:
     """All settings of :class:`online_em_slam.core.slam.OnlineEMSlam`."""
@@ -282,6 +351,7 @@ class SlamConfig:
     filter: FilterConfig = field(default_factory=FilterConfig)
     em: EMConfig = field(default_factory=EMConfig)
     association: AssociationConfig = field(default_factory=AssociationConfig)
+    noise_learning: NoiseLearningConfig = field(default_factory=NoiseLearningConfig)
 
     def validate(self) -> "SlamConfig":
         for f in fields(self):
@@ -314,7 +384,7 @@ def _section_from_dict(sub_cls, section: dict[str, Any], name: str):
     for key, value in section.items():
         default = getattr(sub_cls(), key)
         if isinstance(default, tuple):
-            value = tuple(value)
+            value = (value,) if isinstance(value, str) else tuple(value)    # "range" is one name, not 5
         elif isinstance(default, bool):
             value = bool(value)
         elif isinstance(default, float) and isinstance(value, int):

@@ -1,0 +1,397 @@
+"""Noise parameters learned online by the same EM (ALGORITHM.md section 7, docs/METHOD.md
+"Noise learned online").
+
+The observation noise R (sigma_r, sigma_b, rho), the mixture weights and
+outlier scales, the range-dependent range noise sigma_r(r) = a + b r and one
+scale s on the motion noise are parameters of the same HMM as the map, so the
+filter's E-step estimates them too.  Each filter step turns the posterior
+particles into *sufficient statistics* of these parameters; the statistics are
+averaged by stochastic approximation (S <- S + gamma_n (s_t - S),
+gamma_n = n^-alpha) and the M-step below maps the averages to parameter values,
+held between a floor and a ceiling.  The estimator uses them after a warm-up.
+
+Observation statistics, per associated observation p with innovations
+nu_ip = y_p - h(xi_i, thetabar_k) under the posterior particles (weights w_i):
+
+    E_p   = sum_i w_i (sum_c r_ipc / s_c) (nu_ip nu_ip^T - H_ip Sigma_k H_ip^T)    (E)
+
+r_ipc the responsibility of mixture component c (scale s_c), Sigma_k the
+landmark's covariance before this observation.  The innovation is predictive
+(thetabar_k has not seen y_p yet), so its second moment is R + H Sigma_k H^T:
+the map term is taken out, or R would absorb the map's uncertainty.  The pose's
+uncertainty needs no term: averaging over the posterior particles is the
+E-step's expectation over the pose (mean outer product plus posterior spread).
+
+Motion statistic, per filter step, with d_i = xi_i - f(xi_{a_i}) the move of
+particle i from its ancestor's predicted pose and Sigma_i = s Q_i + J the
+transition covariance (J the jitter, not scaled): the score of s gives the
+fixed point
+
+    s = s_cur sum_t E[d^T Sigma^-1 (s_cur Q) Sigma^-1 d] / sum_t tr(Sigma^-1 s_cur Q)   (M)
+
+which is the mean of d^T Q^-1 d / 3 when J is negligible and ignores the
+directions that only the jitter moves (a robot standing still says nothing
+about its motion noise).  The pair (xi_{a_i}, xi_i) under w_i is the joint
+law of two successive poses, the fixed-lag smoother of the motion residual
+c_t = f(xbar_{t-1}) - xbar_t of section 6 plus its posterior spread.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .angles import wrap_angle
+from .config import ObservationNoiseConfig, SlamConfig
+from .em_step import FilterStepData
+from .motion import step_jitter
+from .observation import inv_det_2x2, noise_covariance, noise_loglik
+from .observed_information import motion_residual
+from .particles import weighted_pose_mean
+
+# Motion noise standard deviations: all of them scale by sqrt(s) when the
+# transition covariance scales by s (every model's covariance is a sum of their squares).
+MOTION_STDS = ("sigma_speed", "sigma_steering", "sigma_heading", "odometry_translation_std",
+               "odometry_rotation_std", "odometry_translation_per_meter", "odometry_rotation_per_radian",
+               "odometry_rotation_per_meter")
+# Range bins of the sigma_r(r) = a + b r fit, over [0, min(max_range, RANGE_BIN_REACH)]
+# (farther observations share the last bin): the bins only weigh, their means are exact.
+RANGE_BINS, RANGE_BIN_REACH = 16, 100.0
+# A filter step informs the motion scale when at least this many of the transition's
+# three dimensions are motion noise rather than jitter.
+MIN_MOTION_DIMENSIONS = 0.5
+# Largest change of the motion scale in use per filter step, in log: a factor 9 takes 110 steps.
+MAX_SCALE_RATE = 0.02
+
+
+def batch_step_size(count: float, batch: int, alpha: float) -> float:
+    """gamma of ``batch`` consecutive updates n = count+1 .. count+batch with one mean:
+    1 - prod_j (1 - n_j^-alpha), so a scan of P observations weighs as P single updates."""
+    n = count + np.arange(1, batch + 1, dtype=float)
+    return float(1.0 - np.prod(1.0 - n ** -alpha))
+
+
+@dataclass
+class StochasticAverage:
+    """S_n = S_{n-1} + gamma_n (s - S_{n-1}), gamma_n = n^-alpha (online EM's averaging)."""
+
+    alpha: float
+    value: np.ndarray | None = None
+    count: int = 0
+
+    def blend(self, sample: np.ndarray, batch: int = 1) -> None:
+        gamma = batch_step_size(self.count, batch, self.alpha)
+        self.value = sample.copy() if self.value is None else self.value + gamma * (sample - self.value)
+        self.count += batch
+
+
+class RangeBins:
+    """Per range bin, the stochastic average of (r, r^2, e_r^2).
+
+    E[e_r^2] = E[(a + b r)^2] = a^2 + 2ab E[r] + b^2 E[r^2] holds exactly in every
+    bin, whatever its width, so the averages do not depend on the values of
+    (a, b) at the time they were taken; the bins only let the fit weigh near and
+    far observations by their own variance.
+    """
+
+    def __init__(self, max_range: float, alpha: float) -> None:
+        self.edges = np.linspace(0.0, min(max_range, RANGE_BIN_REACH), RANGE_BINS + 1)[1:-1]
+        self.bins = [StochasticAverage(alpha) for _ in range(RANGE_BINS)]
+        self.alpha = alpha
+
+    def blend(self, ranges: np.ndarray, squared: np.ndarray) -> None:
+        index = np.searchsorted(self.edges, ranges)
+        for j in np.unique(index):
+            mine = index == j
+            r = ranges[mine]
+            self.bins[j].blend(np.array([r.mean(), (r * r).mean(), squared[mine].mean()]), int(mine.sum()))
+
+    def table(self) -> tuple[np.ndarray, np.ndarray]:
+        """(weights n_j^alpha (K,), means (K, 3)) of the bins that have data; n^alpha is
+        the effective sample size of an average with step sizes n^-alpha."""
+        full = [b for b in self.bins if b.value is not None]
+        if not full:
+            return np.zeros(0), np.zeros((0, 3))
+        return (np.array([b.count for b in full], dtype=float) ** self.alpha, np.array([b.value for b in full]))
+
+
+def range_noise_fit(counts: np.ndarray, means: np.ndarray, a: float, b: float, free: tuple[bool, bool],
+                    iterations: int = 30) -> tuple[float, float]:
+    """(a, b) of sigma_r(r) = a + b r by weighted least squares of the bins' mean squared
+    range residuals against range (:class:`RangeBins`), ``free`` saying which may move.
+
+    Residuals rho_j = a^2 + 2ab E_j[r] + b^2 E_j[r^2] - E_j[e^2], weights
+    n_j^alpha / v_j^2 (a squared Gaussian residual has variance 2 v^2), damped
+    Gauss-Newton with the weights renewed at every iteration (iteratively
+    reweighted: its fixed point is the maximum-likelihood one).
+    """
+    free = np.array(free, dtype=bool)
+    params = np.array([a, b], dtype=float)
+    if counts.size == 0 or not free.any():
+        return a, b
+    for _ in range(iterations):
+        weights = counts / np.maximum(_range_variance(means, params), 1e-300) ** 2
+        cost = _range_cost(means, weights, params)
+        step = _gauss_newton_step(means, weights, params, free)
+        if np.all(np.abs(step) <= 1e-9 * np.abs(params) + 1e-15):
+            break                                         # converged (the averages move slowly)
+        for _ in range(10):                               # backtrack: keep the cost decreasing
+            trial = params + step
+            if trial[0] > 0 and trial[1] >= 0 and _range_cost(means, weights, trial) <= cost * (1 + 1e-12):
+                break
+            step = 0.5 * step
+        else:
+            break
+        params = trial
+    return float(params[0]), float(params[1])
+
+
+def _range_variance(means: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """E_j[(a + b r)^2] per bin."""
+    a, b = params
+    return a * a + 2.0 * a * b * means[:, 0] + b * b * means[:, 1]
+
+
+def _range_cost(means: np.ndarray, weights: np.ndarray, params: np.ndarray) -> float:
+    return float(weights @ (_range_variance(means, params) - means[:, 2]) ** 2)
+
+
+def _gauss_newton_step(means: np.ndarray, weights: np.ndarray, params: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """-(J^T W J)^-1 J^T W rho on the free parameters; J_j = 2 (a + b E[r], a E[r] + b E[r^2])."""
+    a, b = params
+    J = 2.0 * np.stack([a + b * means[:, 0], a * means[:, 0] + b * means[:, 1]], axis=1)[:, free]
+    rho = _range_variance(means, params) - means[:, 2]
+    G = J.T @ (weights[:, None] * J)
+    step = np.zeros(2)
+    ridge = 1e-12 * max(np.trace(G), 1e-300)       # all observations in one bin: b is not identified
+    try:
+        step[free] = -np.linalg.solve(G + ridge * np.eye(G.shape[0]), J.T @ (weights * rho))
+    except np.linalg.LinAlgError:
+        pass
+    return step
+
+
+@dataclass
+class MotionStep:
+    """One filter step of the motion-scale window: residual c_t = f(xbar_{t-1}) - xbar_t (3,),
+    Jacobian F_t, motion noise covariance Q_t at scale 1, jitter J, posterior spread P_t."""
+
+    c: np.ndarray
+    F: np.ndarray
+    Q: np.ndarray
+    J: np.ndarray
+    P: np.ndarray
+    observed: bool
+
+
+def window_statistic(steps: list[MotionStep], scale: float) -> np.ndarray | None:
+    """(tr(A Q_L), C^T A C - tr(A (J_L + Phi P_0 Phi^T - P_L))) over the window: s = mean 2nd / mean 1st.
+
+    steps[0] only gives P_0, the posterior spread before the window.  C = sum_k
+    Phi(t, k) c_k is the window's compounded motion residual, Q_L = sum_k
+    Phi Q_k Phi^T its motion covariance at scale 1 and J_L the jitter's.  The
+    Kalman-filter identity (c_k = -K_k nu_k, innovations white) gives
+    E[C C^T] = s Q_L + J_L + Phi P_0 Phi^T - P_L, so for any weight A the
+    pair's ratio is unbiased for s.  A = V^-1 Q_L V^-1 with V = s Q_L + J_L +
+    Phi P_0 Phi^T, the residual's predicted covariance, is the score's weight
+    and gives the directions the pose's uncertainty dominates little weight.
+    The window's length is what makes the statistic informative: one step's
+    motion noise is small next to the pose's uncertainty, L steps' is not.
+    """
+    C, Q, J, Phi = np.zeros(3), np.zeros((3, 3)), np.zeros((3, 3)), np.eye(3)
+    for step in reversed(steps[1:]):
+        C += Phi @ step.c
+        Q += Phi @ step.Q @ Phi.T
+        J += Phi @ step.J @ Phi.T
+        Phi = Phi @ step.F
+    prior = Phi @ steps[0].P @ Phi.T
+    try:
+        if np.trace(np.linalg.solve(scale * Q + J, scale * Q)) < MIN_MOTION_DIMENSIONS:
+            return None                   # standing still: the jitter is all the window moved
+        V_inv = np.linalg.inv(scale * Q + J + prior)
+    except np.linalg.LinAlgError:
+        return None
+    A = V_inv @ Q @ V_inv
+    dims = float(np.trace(A @ Q))
+    spread = float(C @ A @ C - np.trace(A @ (J + prior - steps[-1].P)))
+    return np.array([dims, spread]) if np.isfinite(dims) and np.isfinite(spread) else None
+
+class NoiseLearner:
+    """Online EM statistics of the noise and the learned :class:`ObservationNoiseConfig` and motion scale.
+
+    ``update`` once per filter step; ``noise_config()`` and ``motion_scale()``
+    are what the estimator uses (the configured values until warmed up).
+    """
+
+    def __init__(self, config: SlamConfig) -> None:
+        self.config = config
+        self.settings = config.noise_learning
+        learn = set(self.settings.learn) if self.settings.enabled else set()
+        if config.noise.model != "mixture":
+            learn.discard("mixture")                     # nothing to learn in one Gaussian
+        self.learn = learn
+        self.observations = StochasticAverage(self.settings.step_size_exponent)
+        self.motion = StochasticAverage(self.settings.step_size_exponent)
+        self.window: deque[MotionStep] = deque(maxlen=self.settings.motion_window + 1)
+        self.range_bins = RangeBins(config.sensor.max_range, self.settings.step_size_exponent)
+        self.estimate = config.noise                     # current M-step values
+        self.scale_estimate = 1.0
+        self.scale_in_use = 1.0
+        self._in_use = config.noise
+
+    # ------------------------------------------------------------ what the estimator uses
+    @property
+    def observation_noise_warm(self) -> bool:
+        return self.observations.count >= self.settings.warmup_observations and self.observations.value is not None
+
+    @property
+    def motion_scale_warm(self) -> bool:
+        return self.motion.count >= self.settings.warmup_steps and self.motion.value is not None
+
+    def noise_config(self) -> ObservationNoiseConfig:
+        """The observation noise for R, the likelihood and the gates."""
+        return self._in_use
+
+    def motion_scale(self) -> float:
+        """Factor on the motion noise covariance (1 until warmed up or when not learned)."""
+        return self.scale_in_use
+
+    # ------------------------------------------------------------ E-step
+    def update(self, data: FilterStepData, n_obs: np.ndarray, map_cov: np.ndarray) -> None:
+        """Blend in one filter step's statistics and redo the M-step of the noise.
+
+        ``n_obs`` (P,): observation counts of the observed landmarks (this one
+        included); ``map_cov`` (P, 2, 2): their covariances before this step.
+        """
+        if "motion_scale" in self.learn:
+            self._update_motion(data)                    # every step: silence is part of the motion
+        if self.learn & {"range", "bearing", "correlation", "mixture", "range_growth"} and data.rows.size:
+            statistics = self._observation_statistics(data, n_obs, map_cov)
+            if statistics is not None:
+                sample, ranges, squared = statistics
+                self.observations.blend(sample, ranges.size)
+                self.range_bins.blend(ranges, squared)
+                self.estimate = self._observation_m_step(self.observations.value)
+                self._in_use = self.estimate if self.observation_noise_warm else self.config.noise
+
+    def _observation_statistics(self, data: FilterStepData, n_obs: np.ndarray, map_cov: np.ndarray):
+        """(the step's mean of [E_bb, rho term, responsibilities, r_c q], ranges, E_rr), from (E)."""
+        use = (np.asarray(n_obs) >= self.settings.min_landmark_observations) & self._configured_R(data)
+        if not use.any():
+            return None
+        # Responsibilities and outlier scales under the latest estimate (the E-step of
+        # online EM runs at the current parameter, also while the filter still warms up).
+        noise = self.estimate
+        ranges = data.y[use, 0]
+        nu, H, R, w = data.nu[:, use], data.H[:, use], noise_covariance(noise, ranges), data.weights
+        map_term = H @ map_cov[use][None] @ np.swapaxes(H, -1, -2)                    # (N, P, 2, 2)
+        _, resp = noise_loglik(noise, nu, R[None] + map_term)                         # (N, P, C)
+        scales = np.asarray(noise.mixture_scales if noise.model == "mixture" else (1.0,), dtype=float)
+        outer = nu[..., :, None] * nu[..., None, :] - map_term
+        E = np.einsum("n,np,npij->pij", w, resp @ (1.0 / scales), outer)              # (E), (P, 2, 2)
+        R_inv, _ = inv_det_2x2(R)
+        q = 0.5 * np.einsum("pij,npji->np", R_inv, outer)                             # tr(R^-1 outer) / 2
+        a, b = noise.sigma_range, noise.range_growth
+        sample = np.concatenate([
+            [E[:, 1, 1].mean(), (a * E[:, 0, 1] / (a + b * ranges)).mean()],     # rho scales with sigma_r(r)
+            np.einsum("n,npc->pc", w, resp).mean(axis=0),                            # mean responsibilities
+            np.einsum("n,npc,np->pc", w, resp, q).mean(axis=0)])
+        if not (np.all(np.isfinite(sample)) and np.all(np.isfinite(E[:, 0, 0]))):
+            return None
+        return sample, ranges, E[:, 0, 0]
+
+    def _configured_R(self, data: FilterStepData) -> np.ndarray:
+        """Observations whose R is the one in use; those with their own range_std /
+        bearing_std carry a known noise and say nothing about R."""
+        expected = noise_covariance(self._in_use, data.y[:, 0])
+        return np.all(np.isclose(data.R, expected, rtol=1e-9, atol=1e-15), axis=(-1, -2))
+
+    def _update_motion(self, data: FilterStepData) -> None:
+        """Push the step into the window; blend (M) of the last ``motion_window`` steps."""
+        scale = self.motion_scale()
+        jitter = step_jitter(self.config.motion)
+        pose = weighted_pose_mean(data.particles, data.weights)
+        dev = data.particles - pose
+        dev[:, 2] = wrap_angle(dev[:, 2])
+        self.window.append(MotionStep(c=motion_residual(data.motion_mean, pose), F=data.motion_jacobian.copy(),
+                                      Q=(data.motion_cov - jitter) / scale, J=jitter,
+                                      P=np.einsum("n,ni,nj->ij", data.weights, dev, dev),
+                                      observed=bool(data.rows.size)))
+        if len(self.window) < self.window.maxlen or not any(step.observed for step in self.window):
+            return
+        sample = window_statistic(list(self.window), scale)
+        if sample is not None:
+            self.motion.blend(sample)
+            low, high = self.settings.motion_scale_limits
+            self.scale_estimate = float(np.clip(self.motion.value[1] / self.motion.value[0], low, high))
+            if self.motion_scale_warm:
+                # Move towards the estimate by at most MAX_SCALE_RATE (log) per step: a window's
+                # statistic assumes one scale throughout, and a jump would make the pose spreads
+                # at its two ends disagree (a bias that feeds itself).
+                ratio = np.clip(self.scale_estimate / self.scale_in_use, np.exp(-MAX_SCALE_RATE), np.exp(MAX_SCALE_RATE))
+                self.scale_in_use = float(self.scale_in_use * ratio)
+
+    # ------------------------------------------------------------ M-step
+    def _observation_m_step(self, stats: np.ndarray) -> ObservationNoiseConfig:
+        """Noise values from the averaged statistics, each within its floor and ceiling."""
+        s, noise = self.settings, self.estimate
+        a, b = noise.sigma_range, noise.range_growth
+        free = ("range" in self.learn, "range_growth" in self.learn)
+        if any(free):
+            a, b = range_noise_fit(*self.range_bins.table(), a, b, free)
+            a, b = float(np.clip(a, *s.sigma_range_limits)), float(np.clip(b, *s.range_growth_limits))
+        sb = noise.sigma_bearing
+        if "bearing" in self.learn:
+            sb = float(np.clip(math.sqrt(max(stats[0], 0.0)), *s.sigma_bearing_limits))
+        rho = noise.rho
+        if "correlation" in self.learn:
+            bound = s.correlation_limit * a * sb
+            rho = float(np.clip(stats[1], -bound, bound))
+        else:
+            rho = float(np.clip(rho, -0.999 * a * sb, 0.999 * a * sb))   # stays valid as a, sb move
+        values = dict(sigma_range=a, range_growth=b, sigma_bearing=sb, rho=rho)
+        if "mixture" in self.learn:
+            values.update(self._mixture_m_step(stats[2:]))
+        return replace(noise, **values)
+
+    def _mixture_m_step(self, stats: np.ndarray) -> dict:
+        """Weights = mean responsibilities; outlier scales = E[r_c q] / E[r_c] (component 0 keeps scale 1)."""
+        s = self.settings
+        c = stats.size // 2
+        resp, q = stats[:c], stats[c:]
+        outlier_w = np.clip(resp[1:], *s.mixture_weight_limits)
+        outlier_w *= min(1.0, 0.5 / max(outlier_w.sum(), 1e-300))      # the inlier keeps at least half
+        scales = np.asarray(self.estimate.mixture_scales, dtype=float).copy()
+        seen = resp[1:] > 1e-9
+        scales[1:][seen] = np.clip(q[1:][seen] / resp[1:][seen], *s.mixture_scale_limits)
+        weights = np.concatenate([[1.0 - outlier_w.sum()], outlier_w])
+        return {"mixture_weights": tuple(float(v) for v in weights / math.fsum(weights)),
+                "mixture_scales": (1.0,) + tuple(float(v) for v in scales[1:])}
+
+    # ------------------------------------------------------------ reporting
+    def learned(self) -> dict:
+        """Current estimates, whether the estimator uses them, and the counts behind them."""
+        noise = self.estimate
+        return {"enabled": bool(self.learn), "learning": sorted(self.learn),
+                "observations": int(self.observations.count), "motion_steps": int(self.motion.count),
+                "observation_noise_in_use": self.observation_noise_warm and bool(self.learn - {"motion_scale"}),
+                "motion_scale_in_use": "motion_scale" in self.learn and self.motion_scale_warm,
+                "sigma_range": noise.sigma_range, "sigma_bearing": noise.sigma_bearing, "rho": noise.rho,
+                "range_growth": noise.range_growth, "model": noise.model,
+                "mixture_weights": list(noise.mixture_weights), "mixture_scales": list(noise.mixture_scales),
+                "motion_scale": self.scale_estimate}
+
+    def parameters(self) -> dict:
+        """The values in use as flat node parameters (noise.*, motion.* standard deviations),
+        the form of a parameter file: the motion scale s is folded into the stds (x sqrt(s))."""
+        noise = self._in_use
+        values = {"noise.model": noise.model, "noise.sigma_range": noise.sigma_range,
+                  "noise.sigma_bearing": noise.sigma_bearing, "noise.rho": noise.rho,
+                  "noise.range_growth": noise.range_growth,
+                  "noise.mixture_weights": [float(v) for v in noise.mixture_weights],
+                  "noise.mixture_scales": [float(v) for v in noise.mixture_scales]}
+        root = math.sqrt(self.motion_scale())
+        values.update({f"motion.{name}": getattr(self.config.motion, name) * root for name in MOTION_STDS})
+        return values
