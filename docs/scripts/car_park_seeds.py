@@ -21,6 +21,7 @@ import numpy as np
 
 VARIANTS = {
     "online_em (observed)": ("online_em", {}),
+    "online_em (observed, no FEJ)": ("online_em", {"em.first_estimate_jacobians": "false"}),
     "online_em (complete)": ("online_em", {"em.m_step": '"complete"'}),
     "ekf_slam": ("ekf_slam", {}),
     "fastslam2": ("fastslam2", {}),
@@ -31,7 +32,7 @@ def params_file(out: Path, name: str, overrides: dict) -> Path:
     """config/car_park.yaml with ``overrides`` appended under ros__parameters."""
     text = Path("config/car_park.yaml").read_text()
     lines = "".join(f"    {key}: {value}\n" for key, value in overrides.items())
-    path = out / f"params-{name.split()[0]}-{len(overrides)}.yaml"
+    path = out / f"params-{''.join(c for c in name if c.isalnum())}.yaml"
     path.write_text(text.rstrip("\n") + "\n" + lines)
     return path
 

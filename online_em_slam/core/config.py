@@ -213,7 +213,7 @@ class EMConfig:
     min_updates_before_mstep: int = 1
     block_initial_length: int = 20
     block_growth: float = 1.1
-    inflate_with_map_uncertainty: bool = True
+    inflate_with_map_uncertainty: bool = False
     m_step: str = "observed"
     segment_length: int = 10
     relinearize_threshold: float = 0.5

@@ -126,6 +126,32 @@ _CORE = {
                                       "accumulated before a loop closure, so revisited landmarks are "
                                       "re-associated instead of duplicated.", (0.0, 100.0)),
     "association.gate_heading_std": ("Extra heading std (rad) in the association gate only.", (0.0, 3.2)),
+    "noise_learning.enabled": ("Learn the noise online by EM (noise_learning.learn); the learned values "
+                               "are used once warmed up and shown on /diagnostics.", None),
+    "noise_learning.learn": ("Quantities learned: any of range, bearing, correlation, mixture (with "
+                             "noise.model mixture), range_growth, motion_scale. To learn nothing set "
+                             "enabled false.", None),
+    "noise_learning.step_size_exponent": ("Step size gamma_n = n^-exponent of the noise statistics, in "
+                                          "(0.5, 1].", (0.5, 1.0)),
+    "noise_learning.warmup_observations": ("Observations before the learned observation noise is used.",
+                                           (0, 1000000000)),
+    "noise_learning.warmup_steps": ("Motion windows before the learned motion scale is used.", (0, 1000000000)),
+    "noise_learning.motion_window": ("Filter steps compounded into one motion-scale statistic.", (1, 1000)),
+    "noise_learning.min_landmark_observations": ("Observations of landmarks seen fewer times (this one "
+                                                 "included) do not inform R.", (1, 1000000)),
+    "noise_learning.sigma_range_limits": ("Floor and ceiling of the learned sigma_range (m), 0 < floor <= "
+                                          "ceiling <= 100.", None),
+    "noise_learning.sigma_bearing_limits": ("Floor and ceiling of the learned sigma_bearing (rad), 0 < floor "
+                                            "<= ceiling <= pi.", None),
+    "noise_learning.range_growth_limits": ("Floor and ceiling of the learned range_growth, in [0, 1].", None),
+    "noise_learning.correlation_limit": ("Bound on |rho| / (sigma_range sigma_bearing) when learned.",
+                                         (0.0, 0.99)),
+    "noise_learning.mixture_weight_limits": ("Floor and ceiling of each learned outlier weight, in (0, 0.5].",
+                                             None),
+    "noise_learning.mixture_scale_limits": ("Floor and ceiling of each learned outlier scale, 1 < floor <= "
+                                            "ceiling <= 1e6.", None),
+    "noise_learning.motion_scale_limits": ("Floor and ceiling of the learned motion noise scale (factor on "
+                                           "the motion covariance), 0 < floor <= ceiling <= 1e4.", None),
 }
 
 _CHOICES = {
@@ -238,7 +264,8 @@ def _core_defaults() -> dict[str, Any]:
             elif name == "filter.seed":
                 value = -1 if value is None else int(value)
             elif isinstance(value, tuple):
-                value = [float(v) for v in value]
+                # Lists of names (noise_learning.learn) stay strings; numbers are doubles.
+                value = [v if isinstance(v, str) else float(v) for v in value]
             defaults[name] = value
     return defaults
 
@@ -282,7 +309,8 @@ def descriptor(spec: ParamSpec) -> ParameterDescriptor:
         if spec.choices:
             d.additional_constraints = "one of: " + ", ".join(spec.choices)
     elif isinstance(value, list):
-        d.type = ParameterType.PARAMETER_DOUBLE_ARRAY
+        strings = bool(value) and isinstance(value[0], str)          # noise_learning.learn
+        d.type = ParameterType.PARAMETER_STRING_ARRAY if strings else ParameterType.PARAMETER_DOUBLE_ARRAY
     return d
 
 
