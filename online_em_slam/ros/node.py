@@ -155,6 +155,28 @@ class OnlineEmSlamNode(Node):
         self._last_reset_reason = ""
         self._drops_reported = 0
 
+        self._create_topics(s)
+
+        # Services.
+        self.create_service(Trigger, "~/reset", self._srv_reset)
+        self.create_service(SetBool, "~/pause", self._srv_pause)
+        self.create_service(Trigger, "~/save_map", self._srv_save_map)
+        self.create_service(Trigger, "~/load_map", self._srv_load_map)
+
+        self._create_timers(s)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
+
+        if s.load_map_on_start:
+            self._log_result(*self._load_map())
+        self.get_logger().info(
+            f"online EM SLAM: motion_source={s.motion_source} (model {self._config.motion.model}), "
+            f"{self._config.filter.num_particles} particles, EM {self._config.em.algorithm}; "
+            f"map -> odom via {self._tf.kind}" + ("" if s.publish_tf else " (publish_tf is false)"))
+
+    # ------------------------------------------------------------------ helpers
+    def _create_topics(self, s) -> None:
+        """Publishers of the outputs, subscriptions of the inputs."""
         # Publishers.
         self._pose_pub = self.create_publisher(PoseWithCovarianceStamped, "~/pose", latched_qos())
         self._path_pub = self.create_publisher(Path, "~/path", latched_qos())
@@ -175,12 +197,7 @@ class OnlineEmSlamNode(Node):
         self._obs_sub = self.create_subscription(PointCloud2, s.observations_topic, self._on_observations,
                                                  qos, event_callbacks=self._events(s.observations_topic))
 
-        # Services.
-        self.create_service(Trigger, "~/reset", self._srv_reset)
-        self.create_service(SetBool, "~/pause", self._srv_pause)
-        self.create_service(Trigger, "~/save_map", self._srv_save_map)
-        self.create_service(Trigger, "~/load_map", self._srv_load_map)
-
+    def _create_timers(self, s) -> None:
         # Timers run on the steady clock: they rate-limit work, independent of sim time.
         self._housekeeping_timer = self.create_timer(0.1, self._housekeeping, clock=self._steady)
         self._map_timer = self.create_timer(s.map_publish_period, self._publish_map, clock=self._steady)
@@ -197,17 +214,6 @@ class OnlineEmSlamNode(Node):
                           on_clock_change=False),
             post_callback=self._on_clock_jump)
 
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.add_post_set_parameters_callback(self._after_set_parameters)
-
-        if s.load_map_on_start:
-            self._log_result(*self._load_map())
-        self.get_logger().info(
-            f"online EM SLAM: motion_source={s.motion_source} (model {self._config.motion.model}), "
-            f"{self._config.filter.num_particles} particles, EM {self._config.em.algorithm}; "
-            f"map -> odom via {self._tf.kind}" + ("" if s.publish_tf else " (publish_tf is false)"))
-
-    # ------------------------------------------------------------------ helpers
     def _events(self, topic: str) -> SubscriptionEventCallbacks:
         def incompatible(info) -> None:
             self.get_logger().error(
