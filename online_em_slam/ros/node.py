@@ -132,6 +132,28 @@ class OnlineEmSlamNode(Node):
         self._pending_jump = False
         self._paused = False
 
+        self._init_outputs_and_statistics(s)
+        self._create_topics(s)
+
+        # Services.
+        self.create_service(Trigger, "~/reset", self._srv_reset)
+        self.create_service(SetBool, "~/pause", self._srv_pause)
+        self.create_service(Trigger, "~/save_map", self._srv_save_map)
+        self.create_service(Trigger, "~/load_map", self._srv_load_map)
+
+        self._create_timers(s)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
+
+        if s.load_map_on_start:
+            self._log_result(*self._load_map())
+        self.get_logger().info(
+            f"online EM SLAM: motion_source={s.motion_source} (model {self._config.motion.model}), "
+            f"{self._config.filter.num_particles} particles, EM {self._config.em.algorithm}; "
+            f"map -> odom via {self._tf.kind}" + ("" if s.publish_tf else " (publish_tf is false)"))
+
+    # ------------------------------------------------------------------ helpers
+    def _init_outputs_and_statistics(self, s) -> None:
         # Output state.
         self._odom_history: deque = deque(maxlen=400)
         self._map_to_odom: np.ndarray | None = None
@@ -155,26 +177,6 @@ class OnlineEmSlamNode(Node):
         self._last_reset_reason = ""
         self._drops_reported = 0
 
-        self._create_topics(s)
-
-        # Services.
-        self.create_service(Trigger, "~/reset", self._srv_reset)
-        self.create_service(SetBool, "~/pause", self._srv_pause)
-        self.create_service(Trigger, "~/save_map", self._srv_save_map)
-        self.create_service(Trigger, "~/load_map", self._srv_load_map)
-
-        self._create_timers(s)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.add_post_set_parameters_callback(self._after_set_parameters)
-
-        if s.load_map_on_start:
-            self._log_result(*self._load_map())
-        self.get_logger().info(
-            f"online EM SLAM: motion_source={s.motion_source} (model {self._config.motion.model}), "
-            f"{self._config.filter.num_particles} particles, EM {self._config.em.algorithm}; "
-            f"map -> odom via {self._tf.kind}" + ("" if s.publish_tf else " (publish_tf is false)"))
-
-    # ------------------------------------------------------------------ helpers
     def _create_topics(self, s) -> None:
         """Publishers of the outputs, subscriptions of the inputs."""
         # Publishers.
