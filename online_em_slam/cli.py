@@ -1,6 +1,6 @@
 """Offline runner: a bag straight into an estimator (no DDS), deterministic for a seed.
 
-    online-em-slam run BAG --params FILE --output DIR [--method online_em|ekf_slam|fastslam2]
+    online-em-slam run BAG --params FILE --output DIR [--method online_em|ekf_slam|fastslam2|marginal_slam]
                        [--seed S] [--particles N] [--initial-pose auto|gps|params|X,Y,YAW]
                        [--match-gate M] [--align] [--no-plot]
     online-em-slam compare BAG --params FILE --output DIR [--methods ...] [--seed S] ...
@@ -62,7 +62,7 @@ from .paramfile import config_from_params, load_params
 from .pipeline import CONTROL, OBSERVATIONS, ODOMETRY, Feeder, InputPath
 from .tum import write_run_tum
 
-METHODS = ("online_em", "ekf_slam", "fastslam2")
+METHODS = ("online_em", "ekf_slam", "fastslam2", "marginal_slam")
 GT_POSITION_TOPIC = "/ground_truth/position"
 GT_LANDMARKS_TOPIC = "/ground_truth/landmarks"
 TRAJECTORY_HEADER = ("t", "x", "y", "yaw")
@@ -203,6 +203,9 @@ def make_estimator(method: str, config: SlamConfig, initial_pose):
     if method == "fastslam2":
         from .baselines import FastSlam2
         return FastSlam2(config, initial_pose=initial_pose)
+    if method == "marginal_slam":
+        from .baselines import MarginalSlam
+        return MarginalSlam(config, initial_pose=initial_pose)
     raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
 
 
