@@ -17,7 +17,7 @@ import numpy as np
 
 from ..core.angles import wrap_angle
 from ..core.config import SlamConfig
-from ..core.motion import odometry_increment
+from ..core.inputs import MotionInput
 from ..core.observation import noise_covariance
 from ..core.types import Observations, StepReport
 
@@ -52,43 +52,31 @@ class BaselineFilter:
         """Forget the map and restart at ``initial_pose`` (default: the constructor's)."""
         if initial_pose is not None:
             self._initial_pose = np.asarray(initial_pose, dtype=float).reshape(3).copy()
-        self.last_stamp = self._initial_stamp
-        self._held_control: np.ndarray | None = None
-        self._last_odometry: np.ndarray | None = None
+        self._input = MotionInput(self.config.motion.model, self.drops, self._initial_stamp)
         self._scan_count = 0
         self._reset_state(self._initial_pose.copy())
 
+    @property
+    def last_stamp(self) -> float | None:
+        return self._input.last_stamp
+
     def add_control(self, stamp: float, control) -> bool:
         """Propagate to ``stamp`` with the held control, then hold ``control`` (zero-order hold)."""
-        u = np.asarray(control, dtype=float).reshape(-1)
-        if self.config.motion.model == "odometry":
-            self.drops["control_ignored_by_odometry_model"] += 1
+        u = self._input.control(stamp, control)
+        if u is None or not self._advance(stamp):
             return False
-        if u.shape[0] < 2 or not np.all(np.isfinite(u[:2])):
-            self.drops["non_finite_control"] += 1
-            return False
-        if not self._advance(stamp):
-            return False
-        self._held_control = u[:2].copy()
+        self._input.held_control = u
         return True
 
     def add_odometry(self, stamp: float, odom_pose) -> bool:
-        """Apply the body-frame increment from the previous odometry pose (motion.model == "odometry").
-
-        With another motion model the pose is only remembered (and time advanced),
-        like the core, so switching sources later does not produce a jump.
-        """
-        pose = np.asarray(odom_pose, dtype=float).reshape(-1)
-        if pose.shape[0] < 3 or not np.all(np.isfinite(pose[:3])):
-            self.drops["non_finite_odometry"] += 1
+        """Apply the body-frame increment from the previous odometry pose (motion.model == "odometry")."""
+        previous_stamp = self._input.last_stamp
+        usable, increment = self._input.odometry(stamp, odom_pose)
+        if not usable:
             return False
-        if not self._accept_stamp(stamp):
-            return False
-        stamp = float(stamp)
-        if self.config.motion.model == "odometry" and self._last_odometry is not None:
-            dt = 0.0 if self.last_stamp is None else stamp - self.last_stamp
-            self._predict(odometry_increment(self._last_odometry, pose[:3]), max(dt, 1e-6))
-        self._last_odometry = pose[:3].copy()
+        if increment is not None:
+            dt = 0.0 if previous_stamp is None else float(stamp) - previous_stamp
+            self._predict(increment, max(dt, 1e-6))
         return self._advance(stamp)
 
     def add_observations(self, stamp: float, observations: Observations) -> StepReport:
@@ -121,16 +109,6 @@ class BaselineFilter:
         if report is not None:
             report.dropped[reason] = report.dropped.get(reason, 0) + n
 
-    def _accept_stamp(self, stamp: float) -> bool:
-        """Finite and not older than the last processed stamp (else counted, as in the core)."""
-        if not math.isfinite(stamp):
-            self.drops["non_finite_stamp"] += 1
-            return False
-        if self.last_stamp is not None and stamp < self.last_stamp:
-            self.drops["out_of_order"] += 1
-            return False
-        return True
-
     def _advance(self, stamp: float) -> bool:
         """Propagate from ``last_stamp`` to ``stamp`` with the held control.
 
@@ -139,22 +117,23 @@ class BaselineFilter:
         ``max_prediction_interval`` are clipped to it (counted), because
         extrapolating a held control over a long gap is not credible.
         """
-        if not self._accept_stamp(stamp):
+        held = self._input
+        if not held.accept_stamp(stamp):
             return False
         stamp = float(stamp)
-        if self.last_stamp is None:
-            self.last_stamp = stamp
+        if held.last_stamp is None:
+            held.last_stamp = stamp
             return True
-        dt = stamp - self.last_stamp
+        dt = stamp - held.last_stamp
         motion = self.config.motion
         if dt > motion.max_prediction_interval:
             self.drops["large_time_step_clipped"] += 1
             dt = motion.max_prediction_interval
-        if dt > 0 and self._held_control is not None and motion.model != "odometry":
+        if dt > 0 and held.held_control is not None and motion.model != "odometry":
             n, h = prediction_substeps(dt, motion.max_step)
             for _ in range(n):
-                self._predict(self._held_control, h)
-        self.last_stamp = stamp
+                self._predict(held.held_control, h)
+        held.last_stamp = stamp
         return True
 
 

@@ -25,6 +25,7 @@ from .config import SlamConfig
 from .em_complete import CompleteDataEM
 from .em_observed import ObservedInformationEM
 from .em_step import FilterStepData, MStep
+from .inputs import MotionInput
 from .landmarks import LandmarkTable
 from .noise_learning import NoiseLearner
 from .observation import (component_precision_weight, innovation, inv_det_2x2, inverse_observation,
@@ -106,10 +107,8 @@ class OnlineEMSlam:
         self._pending_controls: list[np.ndarray] = []
         self._pending_dts: list[float] = []
         self._resample_pending = False
-        self._time: float | None = stamp
+        self._input = MotionInput(cfg.motion.model, self.drops, stamp)
         self._anchor_time: float | None = stamp
-        self._held_control: np.ndarray | None = None
-        self._last_odom: np.ndarray | None = None
         self._step = 0
         self._ess = float(n)
         self._map = LandmarkTable()
@@ -136,7 +135,7 @@ class OnlineEMSlam:
 
     @property
     def last_stamp(self) -> float | None:
-        return self._time
+        return self._input.last_stamp
 
     @property
     def step_count(self) -> int:
@@ -147,15 +146,6 @@ class OnlineEMSlam:
         return self._ess
 
     # ------------------------------------------------------------------ inputs
-    def _accept_stamp(self, stamp: float) -> bool:
-        if not np.isfinite(stamp):
-            self.drops["non_finite_stamp"] += 1
-            return False
-        if self._time is not None and stamp < self._time:
-            self.drops["out_of_order"] += 1
-            return False
-        return True
-
     def _predict(self, control: np.ndarray, dt: float) -> None:
         """Queue one motion segment; :meth:`_flush_motion` compounds the queue into (T)."""
         if dt > self.config.motion.max_step:
@@ -189,53 +179,43 @@ class OnlineEMSlam:
 
     def _advance_to(self, stamp: float) -> None:
         """Integrate the held control up to ``stamp`` (zero-order hold)."""
-        if self._time is None:
-            self._time = self._anchor_time = stamp
+        held = self._input
+        if held.last_stamp is None:
+            held.last_stamp = self._anchor_time = stamp
             return
-        dt = stamp - self._time
-        if dt > 0 and self._held_control is not None and self.config.motion.model != "odometry":
-            self._predict(self._held_control, dt)
-        self._time = stamp
+        dt = stamp - held.last_stamp
+        if dt > 0 and held.held_control is not None and self.config.motion.model != "odometry":
+            self._predict(held.held_control, dt)
+        held.last_stamp = stamp
         if stamp - self._anchor_time > self.config.motion.max_prediction_interval:
             # Keep the Gaussian transition local: a filter step without observations.
             self._filter_step(None)
 
     def add_control(self, stamp: float, control) -> bool:
         """Control u = (speed, steering angle or yaw rate) valid from ``stamp`` on."""
-        if self.config.motion.model == "odometry":
-            self.drops["control_ignored_by_odometry_model"] += 1
-            return False
-        control = np.asarray(control, dtype=float).reshape(-1)
-        if control.shape[0] < 2 or not np.all(np.isfinite(control[:2])):
-            self.drops["non_finite_control"] += 1
-            return False
-        if not self._accept_stamp(stamp):
+        u = self._input.control(stamp, control)
+        if u is None:
             return False
         self._advance_to(float(stamp))
-        self._held_control = control[:2].copy()
+        self._input.held_control = u
         return True
 
     def add_odometry(self, stamp: float, odom_pose) -> bool:
         """Odometry-frame pose (x, y, yaw); the increment since the previous one drives motion."""
-        odom_pose = np.asarray(odom_pose, dtype=float).reshape(-1)
-        if odom_pose.shape[0] < 3 or not np.all(np.isfinite(odom_pose[:3])):
-            self.drops["non_finite_odometry"] += 1
+        previous_stamp = self._input.last_stamp
+        usable, increment = self._input.odometry(stamp, odom_pose)
+        if not usable:
             return False
-        if not self._accept_stamp(stamp):
-            return False
-        stamp = float(stamp)
-        if self.config.motion.model == "odometry" and self._last_odom is not None and self._time is not None:
-            increment = motion_models.odometry_increment(self._last_odom, odom_pose)
-            self._predict(increment, max(stamp - self._time, 0.0))
-        self._last_odom = odom_pose[:3].copy()
-        self._advance_to(stamp)
+        if increment is not None:
+            self._predict(increment, max(float(stamp) - previous_stamp, 0.0))
+        self._advance_to(float(stamp))
         return True
 
     def add_observations(self, stamp: float, observations: Observations) -> StepReport:
         """Run one filter step and EM update with a scan of range-bearing observations."""
         started = time.perf_counter()
         report = StepReport(n_observations=len(observations))
-        if not self._accept_stamp(stamp):
+        if not self._input.accept_stamp(stamp):
             report.dropped["out_of_order"] = len(observations) or 1
             return report
         self._advance_to(float(stamp))
@@ -368,7 +348,7 @@ class OnlineEMSlam:
         self._reset_track(weighted_pose_mean(particles, weights))
         self._ess = effective_sample_size(weights)
         self._resample_pending = self._ess < self.config.filter.resample_threshold * particles.shape[0]
-        self._anchor_time = self._time
+        self._anchor_time = self._input.last_stamp
         self._step += 1
 
     def _reset_track(self, pose: np.ndarray) -> None:
@@ -508,7 +488,7 @@ class OnlineEMSlam:
         w /= w.sum()
         mean = weighted_pose_mean(self._pred_mean, w)
         cov = weighted_pose_covariance(self._pred_mean, w, mean, self._pred_cov)
-        return PoseEstimate(self._time, mean, cov)
+        return PoseEstimate(self._input.last_stamp, mean, cov)
 
     def learned_noise(self) -> dict:
         """Noise values learned online (noise_learning.py): estimates, counts, and whether in use."""
@@ -575,7 +555,7 @@ class OnlineEMSlam:
         # the instance dict is a complete snapshot to fall back to.
         snapshot = dict(self.__dict__)
         try:
-            self.reset(pose if restore_pose else None, self._time)
+            self.reset(pose if restore_pose else None, self._input.last_stamp)
             self._restore_map(loaded)
         except BaseException:
             self.__dict__.clear()
