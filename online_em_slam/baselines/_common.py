@@ -17,6 +17,7 @@ import numpy as np
 
 from ..core.angles import wrap_angle
 from ..core.config import SlamConfig
+from ..core.association import plan_associations as core_plan
 from ..core.inputs import MotionInput
 from ..core.observation import noise_covariance
 from ..core.types import Observations, StepReport
@@ -206,49 +207,20 @@ class LandmarkBook:
 
 def plan_associations(observations: Observations, book: LandmarkBook, predicted_fn, R: np.ndarray,
                       gates, report: StepReport, drop) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
-    """Decide, for each observation, to update a slot, create a landmark, or drop it.
+    """The core's association plan (core/association.py) over the baseline's slots.
 
-    Known ids (>= 0) map to their slot or create it; unknown ids (-1) go through
-    :func:`online_em_slam.core.association.associate` with the estimator's
-    predicted measurements and innovation covariances S = S0 + R
-    (``predicted_fn()`` returns (z_hat (K, 2), S0 (K, 2, 2))).
-    Returns (update_obs, update_slots, create_obs, create_ids) where
-    create_ids holds the given id or None for a fresh one.
+    ``predicted_fn()`` returns (z_hat (K, 2), S0 (K, 2, 2)) for every slot; the
+    innovation covariance of an unknown-id observation is S0 + R.  Returns
+    (update_obs, update_slots, create_obs, create_ids), create_ids holding the
+    given id or None for a fresh one.
     """
-    from ..core.association import AMBIGUOUS, NEW_LANDMARK, associate
+    y = np.stack([observations.ranges, observations.bearings], axis=1)
 
-    ids = observations.ids
-    update_obs, update_slots, create_obs, create_ids = [], [], [], []
-    known = np.flatnonzero(ids >= 0)
-    slots = book.slots(ids[known])
-    seen_new: set[int] = set()
-    for o, k in zip(known, slots):
-        if k >= 0:
-            update_obs.append(o)
-            update_slots.append(k)
-        elif int(ids[o]) in seen_new:
-            drop(report, "duplicate_id")
-        else:
-            seen_new.add(int(ids[o]))
-            create_obs.append(o)
-            create_ids.append(int(ids[o]))
-    unknown = np.flatnonzero(ids < 0)
-    if unknown.size:
-        z = np.stack([observations.ranges[unknown], observations.bearings[unknown]], axis=1)
-        if len(book):
-            z_hat, S0 = predicted_fn()
-            S = S0[None, :, :, :] + R[unknown][:, None, :, :]
-            assignment, _ = associate(z, z_hat, S, gates)
-        else:
-            assignment = np.full(unknown.size, NEW_LANDMARK)
-        for o, a in zip(unknown, assignment):
-            if a >= 0:
-                update_obs.append(o)
-                update_slots.append(int(a))
-            elif a == NEW_LANDMARK:
-                create_obs.append(o)
-                create_ids.append(None)
-            elif a == AMBIGUOUS:
-                drop(report, "ambiguous_association")
-    return (np.asarray(update_obs, dtype=np.int64), np.asarray(update_slots, dtype=np.int64),
-            np.asarray(create_obs, dtype=np.int64), create_ids)
+    def candidates(unknown):
+        if not len(book):
+            return np.zeros(0, dtype=int), np.zeros((0, 2)), np.zeros((unknown.size, 0, 2, 2))
+        z_hat, S0 = predicted_fn()
+        return np.arange(len(book)), z_hat, S0[None] + R[unknown][:, None]
+
+    plan = core_plan(observations.ids, y, book.slots, candidates, gates, lambda reason, n: drop(report, reason, n))
+    return plan.update_obs, plan.update_rows, plan.create_obs, plan.create_ids

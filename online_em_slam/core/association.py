@@ -67,3 +67,52 @@ def associate(observations: np.ndarray, predicted: np.ndarray, innovation_cov: n
     far = d2.min(axis=1) > gates.create
     assignment[unassigned & far] = NEW_LANDMARK
     return assignment, d2
+
+
+@dataclass
+class AssociationPlan:
+    """One scan's decisions: observations that update a landmark row, observations that create one.
+
+    create_ids holds the observation's id, or None where the estimator assigns a fresh id.
+    """
+
+    update_obs: np.ndarray
+    update_rows: np.ndarray
+    create_obs: np.ndarray
+    create_ids: list
+
+
+def plan_associations(ids: np.ndarray, y: np.ndarray, rows_of_ids, candidates, gates: Gates,
+                      drop) -> AssociationPlan:
+    """Known ids (>= 0) to their row or a new landmark; unknown ids (-1) by likelihood.
+
+    ids (O,), y (O, 2) the scan's ids and (range, bearing); ``rows_of_ids(ids)``
+    gives each id's row (-1 if not in the map); ``candidates(unknown)`` gives
+    (rows (K,), predicted (K, 2), S (U, K, 2, 2)) for the unknown-id
+    observations, S including the observation noise; ``drop(reason, n)``
+    counts.  A repeated id keeps its first observation (``duplicate_id``).
+    Shared by online EM and the baselines, so every method sees the same gates.
+    """
+    known = np.flatnonzero(ids >= 0)
+    first = np.sort(np.unique(ids[known], return_index=True)[1])
+    drop("duplicate_id", known.size - first.size)
+    known = known[first]
+    rows = rows_of_ids(ids[known])
+    update_obs, update_rows = [known[rows >= 0]], [rows[rows >= 0]]
+    create_obs, create_ids = list(known[rows < 0]), [int(i) for i in ids[known[rows < 0]]]
+    unknown = np.flatnonzero(ids < 0)
+    if unknown.size:
+        rows, predicted, S = candidates(unknown)
+        if rows.size:
+            assignment, _ = associate(y[unknown], predicted, S, gates)
+        else:
+            assignment = np.full(unknown.size, NEW_LANDMARK, dtype=int)
+        hit = assignment >= 0
+        update_obs.append(unknown[hit])
+        update_rows.append(rows[assignment[hit]])
+        drop("ambiguous_association", int((assignment == AMBIGUOUS).sum()))
+        new = unknown[assignment == NEW_LANDMARK]
+        create_obs.extend(new)
+        create_ids.extend([None] * new.size)
+    return AssociationPlan(np.concatenate(update_obs).astype(int), np.concatenate(update_rows).astype(int),
+                           np.asarray(create_obs, dtype=int), create_ids)

@@ -20,7 +20,7 @@ import numpy as np
 
 from . import motion as motion_models
 from .angles import wrap_angle
-from .association import AMBIGUOUS, NEW_LANDMARK, Gates, associate
+from .association import Gates, plan_associations
 from .config import SlamConfig
 from .em_complete import CompleteDataEM
 from .em_observed import ObservedInformationEM
@@ -361,70 +361,46 @@ class OnlineEMSlam:
     def _associate(self, obs: Observations, sensor: np.ndarray, prior_weights: np.ndarray,
                    report: StepReport) -> tuple[np.ndarray, np.ndarray]:
         """Pairs (observation index, landmark row); creates landmarks as needed."""
-        cfg = self.config
         w = prior_weights / prior_weights.sum()
         mean_sensor = weighted_pose_mean(sensor, w)
-        known = obs.ids >= 0
-        pair_o: list[np.ndarray] = []
-        pair_l: list[np.ndarray] = []
-        created_obs: list[int] = []
-        created_pos: list[np.ndarray] = []
-        created_ids: list[int] = []
-        if known.any():
-            idx = np.flatnonzero(known)
-            ids = obs.ids[idx]
-            _, first = np.unique(ids, return_index=True)
-            if first.size < idx.size:
-                dup = idx.size - first.size
-                report.dropped["duplicate_id"] = report.dropped.get("duplicate_id", 0) + dup
-                self.drops["duplicate_id"] += dup
-            idx, ids = idx[np.sort(first)], ids[np.sort(first)]
-            rows = self._map.rows_of_ids(ids)
-            pair_o.append(idx[rows >= 0])
-            pair_l.append(rows[rows >= 0])
-            for o, i in zip(idx[rows < 0], ids[rows < 0]):
-                created_obs.append(int(o))
-                created_ids.append(int(i))
-                created_pos.append(inverse_observation(mean_sensor, np.array([obs.ranges[o], obs.bearings[o]])))
-        unknown = np.flatnonzero(~known)
-        if unknown.size:
-            y = np.stack([obs.ranges[unknown], obs.bearings[unknown]], axis=-1)
+        y = np.stack([obs.ranges, obs.bearings], axis=-1)
+
+        def candidates(unknown):
             rows = self._candidate_rows(mean_sensor)
-            if rows.size:
-                predicted, S = self._predicted_measurements(sensor, w, rows, obs, unknown)
-                assignment, _ = associate(y, predicted, S, self._gates)
-            else:
-                assignment = np.full(unknown.size, NEW_LANDMARK, dtype=int)
-            hit = assignment >= 0
-            pair_o.append(unknown[hit])
-            pair_l.append(rows[assignment[hit]] if rows.size else np.zeros(0, dtype=int))
-            ambiguous = int((assignment == AMBIGUOUS).sum())
-            if ambiguous:
-                report.dropped["ambiguous_association"] = report.dropped.get("ambiguous_association", 0) + ambiguous
-                self.drops["ambiguous_association"] += ambiguous
-            new = unknown[assignment == NEW_LANDMARK]
-            if new.size:
-                positions = inverse_observation(mean_sensor[None], y[assignment == NEW_LANDMARK])
-                positions, new = self._dedupe_new(positions, new)
-                created_obs.extend(int(o) for o in new)
-                created_pos.extend(positions)
-                created_ids.extend(self._map.next_ids(len(new), created_ids))
-        if created_obs:
-            room = cfg.association.max_landmarks - len(self._map)
-            if room < len(created_obs):
-                lost = len(created_obs) - max(room, 0)
-                self.drops["map_full"] += lost
-                report.dropped["map_full"] = report.dropped.get("map_full", 0) + lost
-                created_obs, created_pos, created_ids = (created_obs[:max(room, 0)], created_pos[:max(room, 0)],
-                                                        created_ids[:max(room, 0)])
-            if created_obs:
-                new_rows = self._add_landmarks(np.array(created_pos).reshape(-1, 2), np.array(created_ids))
-                pair_o.append(np.array(created_obs, dtype=int))
-                pair_l.append(new_rows)
-                report.n_created = len(created_obs)
-        if not pair_o:
-            return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
-        return np.concatenate(pair_o).astype(int), np.concatenate(pair_l).astype(int)
+            if not rows.size:
+                return rows, np.zeros((0, 2)), np.zeros((unknown.size, 0, 2, 2))
+            return (rows,) + self._predicted_measurements(sensor, w, rows, obs, unknown)
+
+        def drop(reason, n):
+            if n > 0:
+                report.dropped[reason] = report.dropped.get(reason, 0) + n
+                self.drops[reason] += n
+
+        plan = plan_associations(obs.ids, y, self._map.rows_of_ids, candidates, self._gates, drop)
+        new_rows = self._create_landmarks(plan, y, mean_sensor, drop)
+        report.n_created = int(new_rows.size)
+        return (np.concatenate([plan.update_obs, plan.create_obs[:new_rows.size]]),
+                np.concatenate([plan.update_rows, new_rows]).astype(int))
+
+    def _create_landmarks(self, plan, y: np.ndarray, mean_sensor: np.ndarray, drop) -> np.ndarray:
+        """Landmarks for the plan's creations, by inverting h at the mean sensor pose; their rows.
+
+        Unknown-id creations closer than the range noise are merged first; creations
+        beyond ``max_landmarks`` are dropped (``map_full``).  Reorders nothing: the
+        kept creations are the first entries of ``plan.create_obs`` afterwards.
+        """
+        given = np.array([i is not None for i in plan.create_ids], dtype=bool)
+        positions = inverse_observation(mean_sensor[None], y[plan.create_obs]).reshape(-1, 2)
+        fresh_pos, fresh_obs = self._dedupe_new(positions[~given], plan.create_obs[~given])
+        ids = [i for i in plan.create_ids if i is not None]
+        ids += self._map.next_ids(len(fresh_obs), ids)
+        plan.create_obs = np.concatenate([plan.create_obs[given], fresh_obs]).astype(int)
+        positions = np.vstack([positions[given], fresh_pos]).reshape(-1, 2)
+        room = max(self.config.association.max_landmarks - len(self._map), 0)
+        drop("map_full", len(ids) - room)
+        if not ids or room == 0:
+            return np.zeros(0, dtype=int)
+        return self._add_landmarks(positions[:room], np.array(ids[:room]))
 
     def _dedupe_new(self, positions: np.ndarray, obs_idx: np.ndarray):
         """Two unexplained observations of one scan closer than the range noise make one landmark."""
