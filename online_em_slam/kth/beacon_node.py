@@ -22,23 +22,13 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import LaserScan, PointCloud2, PointField
 
-from ..cloud import OBSERVATION_FIELDS, encode
+from ..cloud import OBSERVATION_FIELDS, build_message
 from .beacons import extract_beacons, observation_columns
 
 
 def cloud_message(header, columns: dict, layout=OBSERVATION_FIELDS) -> PointCloud2:
     """An rclpy PointCloud2 (height 1) from columns with the given layout."""
-    specs, step, data = encode(columns, layout=layout)
-    n = len(data) // step if step else 0
-    msg = PointCloud2()
-    msg.header = header
-    msg.height, msg.width = 1, n
-    msg.fields = [PointField(name=f.name, offset=f.offset, datatype=f.datatype, count=f.count) for f in specs]
-    msg.is_bigendian = False
-    msg.point_step, msg.row_step = step, step * n
-    msg.data = data
-    msg.is_dense = True
-    return msg
+    return build_message(PointCloud2, PointField, header, columns, layout)
 
 
 class BeaconNode(Node):

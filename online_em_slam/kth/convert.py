@@ -67,7 +67,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cloud import OBSERVATION_FIELDS, encode
+from ..cloud import OBSERVATION_FIELDS, build_message
+from ..core import motion
+from ..core.config import MotionConfig
+from ..quaternion import yaw_to_xyzw
 from .beacons import extract_beacons, observation_columns
 from .datasets import (VEHICLE, CarPark, GpsTrack, LaserScans, OdometryStream, Vehicle,
                        VictoriaPark, load_car_park, load_victoria_park)
@@ -172,10 +175,18 @@ class Streams:
 
 
 def acfr_rates(speed, steering, vehicle: Vehicle = VEHICLE) -> tuple[np.ndarray, np.ndarray]:
-    """Centre speed v_c = v_e / (1 - tan(alpha) H / L) and yaw rate v_c tan(alpha) / L."""
-    tan_a = np.tan(np.asarray(steering, dtype=np.float64))
-    v_c = np.asarray(speed, dtype=np.float64) / (1.0 - tan_a * vehicle.encoder_offset / vehicle.wheelbase)
-    return v_c, v_c * tan_a / vehicle.wheelbase
+    """Centre speed v_c = v_e / (1 - tan(alpha) H / L) and yaw rate v_c tan(alpha) / L.
+
+    The formula is the filter's own (core.motion.acfr): one step of dt = 1 s
+    from heading 0 moves the pose by (v_c, 0, yaw rate), so the bag's dead
+    reckoning and the filter cannot drift apart.
+    """
+    speed, steering = np.broadcast_arrays(np.asarray(speed, dtype=np.float64),
+                                          np.asarray(steering, dtype=np.float64))
+    model = MotionConfig(model="acfr", wheelbase=vehicle.wheelbase, encoder_offset=vehicle.encoder_offset)
+    control = np.stack([speed.reshape(-1), steering.reshape(-1)], axis=-1)
+    moved, _, _ = motion.acfr(model, np.zeros((len(control), 3)), control, 1.0)
+    return moved[:, 0].reshape(speed.shape), moved[:, 2].reshape(speed.shape)
 
 
 def dead_reckon(control: OdometryStream, vehicle: Vehicle = VEHICLE,
@@ -307,28 +318,18 @@ class MessageFactory:
         self.Point = T["geometry_msgs/msg/Point"]
         self.Quaternion = T["geometry_msgs/msg/Quaternion"]
         self.T = T
-        self._field_cache: dict = {}
 
     def header(self, stamp_ns: int, frame: str):
         sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
         return self.Header(stamp=self.Time(sec=sec, nanosec=nsec), frame_id=frame)
 
     def _quat(self, yaw: float):
-        return self.Quaternion(x=0.0, y=0.0, z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2)))
+        x, y, z, w = yaw_to_xyzw(yaw)
+        return self.Quaternion(x=x, y=y, z=z, w=w)
 
     def _cloud(self, stamp_ns: int, frame: str, columns: dict, layout):
-        T = self.T
-        specs, step, data = encode(columns, layout=layout)
-        key = tuple(layout)
-        if key not in self._field_cache:
-            self._field_cache[key] = [T["sensor_msgs/msg/PointField"](name=f.name, offset=f.offset,
-                                                                      datatype=f.datatype, count=f.count)
-                                      for f in specs]
-        n = len(data) // step if step else 0
-        return T["sensor_msgs/msg/PointCloud2"](
-            header=self.header(stamp_ns, frame), height=1, width=n, fields=self._field_cache[key],
-            is_bigendian=False, point_step=step, row_step=step * n,
-            data=np.frombuffer(data, dtype=np.uint8).copy(), is_dense=True)
+        return build_message(self.T["sensor_msgs/msg/PointCloud2"], self.T["sensor_msgs/msg/PointField"],
+                             self.header(stamp_ns, frame), columns, layout, raw_data=True)
 
     def _transform(self, stamp_ns: int, parent: str, child: str, x: float, y: float, yaw: float):
         T = self.T

@@ -15,9 +15,12 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..cloud import LANDMARK_FIELDS, OBSERVATION_FIELDS, CloudFormatError, decode_message, encode
+from ..cloud import (LANDMARK_FIELDS, MAX_ID, OBSERVATION_FIELDS, CloudFormatError, build_message,
+                     observations_from_message)
 from ..core.angles import wrap_angle
 from ..core.types import LandmarkMap, Observations, PoseEstimate
+from ..quaternion import (DEGENERATE_QUATERNION, QUATERNION_TOLERANCE, odometry_yaw,  # noqa: F401 (re-exported)
+                          quaternion_to_yaw, yaw_to_xyzw)
 
 __all__ = ["CloudFormatError", "stamp_to_sec", "sec_to_stamp", "yaw_to_quaternion", "quaternion_to_yaw", "odometry_yaw",
            "observations_from_cloud", "observations_to_cloud", "landmarks_to_cloud", "landmarks_to_markers",
@@ -40,56 +43,8 @@ def sec_to_stamp(seconds: float) -> TimeMsg:
 
 
 def yaw_to_quaternion(yaw: float) -> Quaternion:
-    half = 0.5 * float(yaw)
-    return Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half))
-
-
-# |q|^2 may differ from 1 by this much before a quaternion counts as unnormalised
-# (tf2's QUATERNION_NORMALIZATION_TOLERANCE); float32 round-off is far below it.
-QUATERNION_TOLERANCE = 1e-2
-# Below this norm, or when the yaw is undefined (pitch +-90 degrees), a quaternion is degenerate.
-DEGENERATE_QUATERNION = 1e-6
-
-
-def _yaw_terms(q) -> tuple[float, float, float]:
-    """Scale-invariant yaw terms (sin part, cos part) and |q|, overflow-free.
-
-    Dividing by the largest component first keeps 1e300 components finite, and
-    using w^2 + x^2 - y^2 - z^2 instead of 1 - 2 (y^2 + z^2) makes the yaw that of
-    the normalised quaternion whatever the scale.
-    """
-    v = np.array([q.x, q.y, q.z, q.w], dtype=float)
-    scale = float(np.max(np.abs(v))) if np.all(np.isfinite(v)) else math.nan
-    if not scale > 0.0:
-        return math.nan if math.isnan(scale) else 0.0, 0.0, scale
-    x, y, z, w = v / scale
-    norm = scale * math.sqrt(x * x + y * y + z * z + w * w)
-    return 2.0 * (w * z + x * y), w * w + x * x - y * y - z * z, norm
-
-
-def quaternion_to_yaw(q) -> float:
-    """Yaw (rotation about z) of a quaternion of any non-zero scale; the roll/pitch parts are ignored."""
-    sin_part, cos_part, _ = _yaw_terms(q)
-    return math.atan2(sin_part, cos_part)
-
-
-def odometry_yaw(q) -> tuple[float, str | None]:
-    """Yaw of an odometry orientation and what was wrong with the quaternion.
-
-    Returns (yaw, None) for a unit quaternion, (yaw of the normalised
-    quaternion, "unnormalised_quaternion") when |q|^2 is off by more than
-    QUATERNION_TOLERANCE, (nan, "degenerate_quaternion") when no yaw is defined
-    (zero or tiny norm, pitch +-90 degrees), and (nan, None) for non-finite
-    components (the caller's non-finite check handles those).
-    """
-    sin_part, cos_part, norm = _yaw_terms(q)
-    if math.isnan(norm):
-        return math.nan, None
-    scaled_norm = math.hypot(sin_part, cos_part)
-    if norm < DEGENERATE_QUATERNION or scaled_norm < DEGENERATE_QUATERNION:
-        return math.nan, "degenerate_quaternion"
-    problem = "unnormalised_quaternion" if abs(norm * norm - 1.0) > QUATERNION_TOLERANCE else None
-    return math.atan2(sin_part, cos_part), problem
+    x, y, z, w = yaw_to_xyzw(yaw)
+    return Quaternion(x=x, y=y, z=z, w=w)
 
 
 def _finite(*values) -> bool:
@@ -97,86 +52,13 @@ def _finite(*values) -> bool:
 
 
 # ----------------------------------------------------------------- observations
-FLOAT_FIELDS = ("range", "bearing", "range_std", "bearing_std")
-MAX_ID = 2 ** 31 - 1          # ids are published as int32 (map cloud, Marker.id)
-# Bearings beyond one extra turn are not a sensor's angle convention ([0, 2 pi) or
-# (-pi, pi]) but garbage; wrapping 1e20 rad would give an arbitrary direction.
-MAX_ABS_BEARING = 2.0 * math.pi
-
-
-def _float_column(columns: dict, name: str) -> np.ndarray | None:
-    """A measurement column; integer types are refused: a UINT8 ``range`` is not metres."""
-    if name not in columns:
-        return None
-    column = columns[name]
-    if column.dtype.kind != "f":
-        raise CloudFormatError(f"field {name!r} has integer type {column.dtype}; "
-                               f"{', '.join(FLOAT_FIELDS)} must be FLOAT32 or FLOAT64")
-    return column.astype(float)
-
-
-def _ids_column(columns: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """ids as int64 and a mask of valid ones: -1 (unknown) or an integer in [0, MAX_ID].
-
-    A float id field holding NaN, 1e20 or 2.5, an id >= 2^31 (it would be published
-    negative and collide with another marker) or below -1 is invalid, not unknown:
-    associating such an observation by likelihood would hide a broken publisher.
-    """
-    if "id" not in columns:
-        return np.full(n, -1, dtype=np.int64), np.ones(n, dtype=bool)
-    raw = columns["id"]
-    if raw.dtype.kind not in "iuf":
-        raise CloudFormatError(f"field 'id' has type {raw.dtype}")
-    values = raw.astype(float) if raw.dtype.kind == "f" else raw.astype(np.int64).astype(float)
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(values) & (values == np.round(values)) & (values >= -1) & (values <= MAX_ID)
-    ids = np.where(valid, values, -1).astype(np.int64)
-    return ids, valid
-
-
-def _count(drops, reason: str, mask: np.ndarray) -> None:
-    if drops is not None and mask.any():
-        drops[reason] += int(mask.sum())
-
-
 def observations_from_cloud(msg: PointCloud2, drops=None) -> Observations:
-    """Observations from a PointCloud2 with fields range, bearing [, id, range_std, bearing_std].
-
-    Raises CloudFormatError for missing fields, inconsistent sizes or measurement
-    fields of integer type.  Observations with an invalid id (see _ids_column), a
-    zero range or a bearing beyond +-2 pi are left out and counted in ``drops``
-    (a Counter, by reason: invalid_id, zero_range, bearing_out_of_range).  Other
-    values are passed on (the core drops and counts non-finite and negative
-    ranges); bearings are wrapped to (-pi, pi].
-    """
-    columns = decode_message(msg, required=("range", "bearing"))
-    ranges, bearings = _float_column(columns, "range"), _float_column(columns, "bearing")
-    std = {name: _float_column(columns, name) for name in ("range_std", "bearing_std")}
-    ids, valid_id = _ids_column(columns, ranges.shape[0])
-    finite = np.isfinite(bearings)
-    with np.errstate(invalid="ignore"):
-        wild = finite & (np.abs(bearings) > MAX_ABS_BEARING)
-    zero = ranges == 0.0
-    _count(drops, "invalid_id", ~valid_id)
-    _count(drops, "zero_range", valid_id & zero)
-    _count(drops, "bearing_out_of_range", valid_id & ~zero & wild)
-    keep = valid_id & ~zero & ~wild
-    bearings = np.where(finite, wrap_angle(np.where(finite & keep, bearings, 0.0)), bearings)
-    observations = Observations(ranges, bearings, ids, std["range_std"], std["bearing_std"])
-    return observations if keep.all() else observations.subset(keep)
-
-
-def _point_fields(specs) -> list[PointField]:
-    return [PointField(name=s.name, offset=s.offset, datatype=s.datatype, count=s.count) for s in specs]
+    """The node's reader of observation clouds: :func:`online_em_slam.cloud.observations_from_message`."""
+    return observations_from_message(msg, drops)
 
 
 def _cloud(header: Header, columns: dict, layout) -> PointCloud2:
-    specs, point_step, data = encode(columns, layout)
-    n = len(data) // point_step if point_step else 0
-    msg = PointCloud2(header=header, height=1, width=n, fields=_point_fields(specs), is_bigendian=False,
-                      point_step=point_step, row_step=point_step * n, is_dense=True)
-    msg.data = data
-    return msg
+    return build_message(PointCloud2, PointField, header, columns, layout)
 
 
 def observations_to_cloud(header: Header, ranges, bearings, ids=None, range_std=None,
