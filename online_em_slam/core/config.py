@@ -70,6 +70,9 @@ class MotionConfig:
     Control noise standard deviations are given for ``noise_reference_period``
     seconds and scaled as continuous-time white noise for other step lengths,
     so the filter behaves the same at 40 Hz or at 5 Hz control input.
+    max_speed (m/s) and max_yaw_rate (rad/s) bound what the vehicle can do: a
+    control or odometry increment beyond them is physically impossible, dropped
+    and counted, so one absurd but finite value cannot poison the estimate.
     """
 
     model: str = "bicycle"
@@ -88,6 +91,8 @@ class MotionConfig:
     heading_jitter: float = 1e-4
     max_step: float = 1.0
     max_prediction_interval: float = 1.0
+    max_speed: float = 50.0
+    max_yaw_rate: float = 10.0
 
     def validate(self, prefix: str = "motion") -> None:
         _check_choice(f"{prefix}.model", self.model, MOTION_MODELS)
@@ -105,6 +110,8 @@ class MotionConfig:
         _check_range(f"{prefix}.heading_jitter", self.heading_jitter, MIN_JITTER, 1.0)
         _check_range(f"{prefix}.max_step", self.max_step, 0.0, 3600.0, low_open=True)
         _check_range(f"{prefix}.max_prediction_interval", self.max_prediction_interval, 0.0, 3600.0, low_open=True)
+        _check_range(f"{prefix}.max_speed", self.max_speed, 0.0, 1e4, low_open=True)
+        _check_range(f"{prefix}.max_yaw_rate", self.max_yaw_rate, 0.0, 1e3, low_open=True)
 
 
 @dataclass
@@ -247,6 +254,9 @@ class AssociationConfig:
                                The particle cloud measures the pose relative to the map;
                                drift accumulated before a loop closure is not in it, and
                                without this margin a revisited landmark is created twice.
+    max_observations_per_scan: usable points of one scan beyond this are dropped
+                               (``too_many_observations``): a bound on the memory and
+                               time one message can cost.
     """
 
     gate_probability: float = 0.99
@@ -257,6 +267,7 @@ class AssociationConfig:
     max_landmarks: int = 5000
     gate_position_std: float = 0.0
     gate_heading_std: float = 0.0
+    max_observations_per_scan: int = 1000
 
     def validate(self, prefix: str = "association") -> None:
         # Both gates are chi-square quantiles: a probability of 1 is an infinite gate.
@@ -270,6 +281,7 @@ class AssociationConfig:
         _check_range(f"{prefix}.max_landmarks", self.max_landmarks, 1, 1000000)
         _check_range(f"{prefix}.gate_position_std", self.gate_position_std, 0.0, 100.0)
         _check_range(f"{prefix}.gate_heading_std", self.gate_heading_std, 0.0, 3.2)
+        _check_range(f"{prefix}.max_observations_per_scan", self.max_observations_per_scan, 1, 100000)
 
 
 LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "range_growth", "motion_scale")

@@ -15,14 +15,24 @@ from collections import Counter
 
 import numpy as np
 
+from .config import MotionConfig
 from .motion import odometry_increment
+
+# An odometry increment may exceed max_speed * dt by this much (m, rad) before it
+# is implausible: stamps jitter, and odometry sources integrate between messages.
+_ODOMETRY_SLACK = (0.5, 0.5)
+# Implausible odometry poses in a row that confirm a jump of the odometry frame
+# (a driver restart): the next pose is then a new reference, without motion.
+_CONFIRM_ODOMETRY_JUMP = 3
+_MAX_STEERING = 1.5   # rad: a steering angle beyond this is not a car's
 
 
 class MotionInput:
     """Stamp guard, held control and last odometry pose of one estimator."""
 
-    def __init__(self, motion_model: str, drops: Counter, stamp: float | None = None) -> None:
-        self.motion_model = motion_model
+    def __init__(self, motion: MotionConfig, drops: Counter, stamp: float | None = None) -> None:
+        self.motion = motion
+        self.motion_model = motion.model
         self.drops = drops
         self.reset(stamp)
 
@@ -30,6 +40,8 @@ class MotionInput:
         self.last_stamp: float | None = None if stamp is None else float(stamp)
         self.held_control: np.ndarray | None = None
         self.last_odometry: np.ndarray | None = None
+        self._last_odometry_stamp: float | None = None
+        self._implausible_odometry = 0
 
     def accept_stamp(self, stamp: float) -> bool:
         """Finite and not older than the last processed input (else counted)."""
@@ -50,7 +62,17 @@ class MotionInput:
         if u.shape[0] < 2 or not np.all(np.isfinite(u[:2])):
             self.drops["non_finite_control"] += 1
             return None
+        if not self._plausible_control(u):
+            self.drops["implausible_control"] += 1
+            return None
         return u[:2].copy() if self.accept_stamp(stamp) else None
+
+    def _plausible_control(self, u: np.ndarray) -> bool:
+        if abs(u[0]) > self.motion.max_speed:
+            return False
+        if self.motion_model == "unicycle":
+            return abs(u[1]) <= self.motion.max_yaw_rate
+        return abs(u[1]) <= _MAX_STEERING
 
     def odometry(self, stamp: float, odom_pose) -> tuple[bool, np.ndarray | None]:
         """(usable, increment since the previous odometry pose or None).
@@ -66,7 +88,28 @@ class MotionInput:
         if not self.accept_stamp(stamp):
             return False, None
         increment = None
-        if self.motion_model == "odometry" and self.last_odometry is not None:
+        if self.last_odometry is not None:
             increment = odometry_increment(self.last_odometry, pose[:3])
-        self.last_odometry = pose[:3].copy()
-        return True, increment
+            if not self._plausible_increment(increment, stamp):
+                return self._implausible(pose, stamp)
+        self._implausible_odometry = 0
+        self.last_odometry, self._last_odometry_stamp = pose[:3].copy(), float(stamp)
+        return True, increment if self.motion_model == "odometry" else None
+
+    def _plausible_increment(self, increment: np.ndarray, stamp: float) -> bool:
+        since = self._last_odometry_stamp
+        dt = 0.0 if since is None else max(float(stamp) - since, 0.0)
+        return (np.hypot(increment[0], increment[1]) <= self.motion.max_speed * dt + _ODOMETRY_SLACK[0]
+                and abs(increment[2]) <= self.motion.max_yaw_rate * dt + _ODOMETRY_SLACK[1])
+
+    def _implausible(self, pose: np.ndarray, stamp: float) -> tuple[bool, None]:
+        """Drop a pose the vehicle cannot have reached; several in a row are a jump of the
+        odometry frame itself, taken as the new reference without motion."""
+        self._implausible_odometry += 1
+        if self._implausible_odometry < _CONFIRM_ODOMETRY_JUMP or not np.all(np.abs(pose[:2]) < 1e12):
+            self.drops["implausible_odometry"] += 1
+            return False, None
+        self.drops["odometry_jump_reset"] += 1
+        self._implausible_odometry = 0
+        self.last_odometry, self._last_odometry_stamp = pose[:3].copy(), float(stamp)
+        return True, None

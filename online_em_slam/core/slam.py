@@ -17,6 +17,7 @@ from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from . import motion as motion_models
 from .angles import wrap_angle
@@ -107,7 +108,7 @@ class OnlineEMSlam:
         self._pending_controls: list[np.ndarray] = []
         self._pending_dts: list[float] = []
         self._resample_pending = False
-        self._input = MotionInput(cfg.motion.model, self.drops, stamp)
+        self._input = MotionInput(cfg.motion, self.drops, stamp)
         self._anchor_time: float | None = stamp
         self._step = 0
         self._ess = float(n)
@@ -170,12 +171,16 @@ class OnlineEMSlam:
         covs = np.concatenate([self._pred_cov, self._track_cov[None]])
         mean, cov, F = motion_models.integrate_segments(self.config.motion, poses, covs, controls, dts,
                                                         with_jacobian=True)
+        self._pending_controls.clear()
+        self._pending_dts.clear()
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+            # Never let one step poison the estimate: keep the last finite state.
+            self.drops["non_finite_prediction"] += 1
+            return
         mean[:, 2] = wrap_angle(mean[:, 2])
         self._pred_mean, self._pred_cov = mean[:-1], cov[:-1]
         self._track_pose, self._track_cov = mean[-1], cov[-1]
         self._track_jacobian = F[-1] @ self._track_jacobian
-        self._pending_controls.clear()
-        self._pending_dts.clear()
 
     def _advance_to(self, stamp: float) -> None:
         """Integrate the held control up to ``stamp`` (zero-order hold)."""
@@ -234,6 +239,14 @@ class OnlineEMSlam:
             if mask.any():
                 report.dropped[reason] = report.dropped.get(reason, 0) + int(mask.sum())
                 self.drops[reason] += int(mask.sum())
+        cap = self.config.association.max_observations_per_scan
+        if in_range.sum() > cap:
+            # A cloud far beyond any sensor's count would cost memory and time in the
+            # association: the first ``cap`` usable points are kept, the rest counted.
+            beyond = np.flatnonzero(in_range)[cap:]
+            in_range[beyond] = False
+            report.dropped["too_many_observations"] = report.dropped.get("too_many_observations", 0) + beyond.size
+            self.drops["too_many_observations"] += int(beyond.size)
         return obs.subset(in_range) if not in_range.all() else obs
 
     # ------------------------------------------------------------------ map rows
@@ -403,15 +416,17 @@ class OnlineEMSlam:
         return self._add_landmarks(positions[:room], np.array(ids[:room]))
 
     def _dedupe_new(self, positions: np.ndarray, obs_idx: np.ndarray):
-        """Two unexplained observations of one scan closer than the range noise make one landmark."""
+        """Two unexplained observations of one scan closer than twice the range noise make
+        one landmark (the earlier is kept).  A k-d tree keeps this O(n log n) in memory
+        and time for a hostile cloud, where the n x n distance matrix was not."""
         if positions.shape[0] < 2:
             return positions, obs_idx
-        keep = np.ones(positions.shape[0], dtype=bool)
         radius = 2.0 * self._noise.noise_config().sigma_range
-        dist = np.linalg.norm(positions[:, None] - positions[None], axis=-1)
-        for i in range(positions.shape[0]):
+        pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")
+        keep = np.ones(positions.shape[0], dtype=bool)
+        for i, j in pairs[np.argsort(pairs[:, 0], kind="stable")]:
             if keep[i]:
-                keep[(dist[i] < radius) & (np.arange(len(keep)) > i)] = False
+                keep[j] = False
         dropped = int((~keep).sum())
         if dropped:
             self.drops["merged_new_landmark"] += dropped

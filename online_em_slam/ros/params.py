@@ -126,6 +126,12 @@ _CORE = {
                                       "accumulated before a loop closure, so revisited landmarks are "
                                       "re-associated instead of duplicated.", (0.0, 100.0)),
     "association.gate_heading_std": ("Extra heading std (rad) in the association gate only.", (0.0, 3.2)),
+    "association.max_observations_per_scan": ("Usable points of one scan beyond this are dropped "
+                                              "(too_many_observations).", (1, 100000)),
+    "motion.max_speed": ("Controls or odometry increments faster than this (m/s) are physically "
+                         "impossible: dropped and counted.", (0.0, 1e4)),
+    "motion.max_yaw_rate": ("Yaw rates beyond this (rad/s) are physically impossible: dropped and "
+                            "counted.", (0.0, 1e3)),
     "noise_learning.enabled": ("Learn the noise online by EM (noise_learning.learn); the learned values "
                                "are used once warmed up and shown on /diagnostics.", None),
     "noise_learning.learn": ("Quantities learned: any of range, bearing, correlation, mixture (with "
