@@ -53,7 +53,7 @@ class BaselineFilter:
         """Forget the map and restart at ``initial_pose`` (default: the constructor's)."""
         if initial_pose is not None:
             self._initial_pose = np.asarray(initial_pose, dtype=float).reshape(3).copy()
-        self._input = MotionInput(self.config.motion.model, self.drops, self._initial_stamp)
+        self._input = MotionInput(self.config.motion, self.drops, self._initial_stamp)
         self._scan_count = 0
         self._reset_state(self._initial_pose.copy())
 
