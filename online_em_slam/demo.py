@@ -24,12 +24,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import signal
 import subprocess
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -72,7 +72,7 @@ def _print_table(rows: list[tuple[str, str, str]]) -> None:
         print(f"  {name:{width}s}  {a:>14s}  {b:>14s}")
 
 
-def main(argv=None) -> int:
+def _parse_args(argv):
     parser = argparse.ArgumentParser(prog="python -m online_em_slam.demo", description=__doc__.split("\n")[0])
     parser.add_argument("--output", default="out/demo", help="output directory (default out/demo)")
     parser.add_argument("--params", default=None, help="node params file (default config/car_park.yaml)")
@@ -80,203 +80,301 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="filter seed of the node and the offline run")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default 1 + pid % 100)")
     parser.add_argument("--timeout", type=float, default=180.0, help="overall time limit of the DDS part (s)")
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
 
-    # DDS environment before rclpy is imported; children inherit it.
-    domain = args.domain_id if args.domain_id is not None else 1 + os.getpid() % 100
+
+def _isolate_dds(domain_id) -> int:
+    """A DDS domain of our own on this host; set before rclpy is imported, children inherit it."""
+    domain = domain_id if domain_id is not None else 1 + os.getpid() % 100
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+    return domain
 
-    from . import cli
-    from .evaluation import landmark_metrics, sensor_points, trajectory_metrics
+
+@dataclass
+class Setup:
+    """What the node run and the offline run share: the bag, its inputs and the settings."""
+
+    bag: Path
+    params: Path
+    seed: int
+    config: object
+    settings: object
+    inputs: object                         # runner.BagInputs
+    initial: object                        # evaluation.InitialPose
+
+
+def _prepare(bag: Path, params: Path, seed: int) -> Setup:
+    """Step 1: the bag from the bundled data, its inputs and the initial pose from GPS."""
     from .kth.convert import convert
     from .paramfile import config_from_params, load_params
-
-    out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
-    params = Path(args.params) if args.params else find_params()
-    bag = out / "car_park_bag"
+    from .runner import choose_initial_pose, read_inputs
 
     print(f"[1/6] converting the bundled Car Park data to {bag}", flush=True)
     convert("car_park", bag, progress=False, overwrite=True)
-
     file_values = load_params(params)
-    config, settings = config_from_params(file_values, {"filter.seed": args.seed})
-    inputs = cli.read_inputs(bag, settings)
-    initial = cli.choose_initial_pose("gps", inputs, config, settings, file_values)
+    config, settings = config_from_params(file_values, {"filter.seed": seed})
+    inputs = read_inputs(bag, settings)
+    initial = choose_initial_pose("gps", inputs, config, settings, file_values)
     print(f"      initial pose from GPS: x={initial.x:.3f} y={initial.y:.3f} yaw={initial.yaw:.4f} "
           f"({initial.source})", flush=True)
+    return Setup(bag, params, seed, config, settings, inputs, initial)
 
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import PoseWithCovarianceStamped
-    from nav_msgs.msg import Path as PathMsg
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import PointCloud2
 
-    from .cloud import decode_message
-    from .core.types import LandmarkMap
-
-    env = dict(os.environ)
+def _start_node(setup: Setup, out: Path, domain: int):
+    """Step 2: the SLAM node as a separate process, at the GPS initial pose; returns (process, log file)."""
+    initial = setup.initial
     node_log = open(out / "node.log", "w")
-    node_cmd = [sys.executable, "-m", "online_em_slam.ros.node", "--ros-args", "--params-file", str(params),
-                "-p", "use_sim_time:=true", "-p", f"filter.seed:={args.seed}",
+    node_cmd = [sys.executable, "-m", "online_em_slam.ros.node", "--ros-args", "--params-file", str(setup.params),
+                "-p", "use_sim_time:=true", "-p", f"filter.seed:={setup.seed}",
                 "-p", f"initial_pose.x:={initial.x:.9f}", "-p", f"initial_pose.y:={initial.y:.9f}",
                 "-p", f"initial_pose.yaw:={initial.yaw:.12f}", "-p", "publish_particles:=false",
                 # The trajectory error is computed from ~/path: publish every kept pose, not a decimation.
                 "-p", "path_publish_max_poses:=20000"]
     print(f"[2/6] starting the node (ROS_DOMAIN_ID={domain}): {' '.join(node_cmd[1:])}", flush=True)
-    node_proc = subprocess.Popen(node_cmd, stdout=node_log, stderr=subprocess.STDOUT, env=env)
+    return subprocess.Popen(node_cmd, stdout=node_log, stderr=subprocess.STDOUT, env=dict(os.environ)), node_log
 
-    context = Context()
-    rclpy.init(context=context)
-    replay_proc = None
-    poses, state = [], {"path": None, "landmarks": None, "diag": None}
-    ok = True
+
+@dataclass
+class Recording:
+    """What the demo received from the node, and what the replay published."""
+
+    poses: list = field(default_factory=list)         # ~/pose messages
+    path: object = None                               # last ~/path
+    landmarks: object = None                          # last ~/landmarks cloud
+    diag: dict = field(default_factory=dict)          # last diagnostics of the node
+    published: dict = field(default_factory=dict)     # by input topic
+    replay_wall: float = 0.0
+
+    @property
+    def total_published(self) -> int:
+        return sum(self.published.values())
+
+    def received(self) -> int:
+        """Inputs the node accounted for: buffered ones and those dropped before the buffer."""
+        diag = self.diag
+        return int(diag.get("inputs", 0)) + sum(int(diag.get(f"dropped.{r}", 0)) for r in PRE_BUFFER_DROPS)
+
+    def on_diagnostics(self, msg) -> None:
+        for status in msg.status:
+            if status.name.startswith(f"{NODE_NAME}:"):
+                self.diag = _diag_values(status)
+
+
+def _subscribe(rec, recording: Recording) -> None:
+    """The recorder's subscriptions to the node's outputs (latched ones with TRANSIENT_LOCAL)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from nav_msgs.msg import Path as PathMsg
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+
+    latched = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    pose_qos = QoSProfile(depth=10000, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    rec.create_subscription(PoseWithCovarianceStamped, f"/{NODE_NAME}/pose", recording.poses.append, pose_qos)
+    rec.create_subscription(PathMsg, f"/{NODE_NAME}/path", lambda m: setattr(recording, "path", m), latched)
+    rec.create_subscription(PointCloud2, f"/{NODE_NAME}/landmarks", lambda m: setattr(recording, "landmarks", m),
+                            latched)
+    rec.create_subscription(DiagnosticArray, "/diagnostics", recording.on_diagnostics, QoSProfile(depth=50))
+
+
+def _replay(executor, node_proc, bag: Path, rate: float, deadline: float, out: Path, recording: Recording):
+    """Step 3: replay the bag as a third process, spinning the recorder meanwhile."""
+    replay_cmd = [sys.executable, "-m", "online_em_slam.replay", str(bag), "--rate", str(rate), "--clock",
+                  "--wait-subscribers", "/control:1", "/odom:1", "/landmark_observations:1", "/clock:1",
+                  "--wait-timeout", "60", "--quiet"]
+    print(f"[3/6] replaying at rate {rate:g} (~{125 / max(rate, 1e-9):.0f} s): {' '.join(replay_cmd[1:])}",
+          flush=True)
+    started = time.monotonic()
+    proc = subprocess.Popen(replay_cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ))
     try:
-        rec = rclpy.create_node("demo_recorder", context=context)
-        latched = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        pose_qos = QoSProfile(depth=10000, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
-                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        rec.create_subscription(PoseWithCovarianceStamped, f"/{NODE_NAME}/pose", poses.append, pose_qos)
-        rec.create_subscription(PathMsg, f"/{NODE_NAME}/path", lambda m: state.__setitem__("path", m), latched)
-        rec.create_subscription(PointCloud2, f"/{NODE_NAME}/landmarks",
-                                lambda m: state.__setitem__("landmarks", m), latched)
-
-        def on_diag(msg):
-            for status in msg.status:
-                if status.name.startswith(f"{NODE_NAME}:"):
-                    state["diag"] = _diag_values(status)
-        rec.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QoSProfile(depth=50))
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(rec)
-
-        replay_cmd = [sys.executable, "-m", "online_em_slam.replay", str(bag), "--rate", str(args.rate), "--clock",
-                      "--wait-subscribers", "/control:1", "/odom:1", "/landmark_observations:1", "/clock:1",
-                      "--wait-timeout", "60", "--quiet"]
-        print(f"[3/6] replaying at rate {args.rate:g} (~{125 / max(args.rate, 1e-9):.0f} s): "
-              f"{' '.join(replay_cmd[1:])}", flush=True)
-        started = time.monotonic()
-        replay_proc = subprocess.Popen(replay_cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                       env=env)
-        deadline = started + args.timeout
-        while replay_proc.poll() is None and time.monotonic() < deadline:
+        while proc.poll() is None and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
             if node_proc.poll() is not None:
                 raise RuntimeError(f"the node exited early (code {node_proc.returncode}); see {out / 'node.log'}")
-        if replay_proc.poll() is None:
+        if proc.poll() is None:
             raise RuntimeError("replay did not finish in time")
-        replay_out, replay_err = replay_proc.communicate()
-        replay_wall = time.monotonic() - started
-        if replay_proc.returncode != 0:
-            raise RuntimeError(f"replay failed (code {replay_proc.returncode}): {replay_err.strip()}")
-        summary = json.loads(replay_out.strip().splitlines()[-1])
-        published = {t: int(summary["published"].get(t, 0)) for t in INPUT_TOPICS}
-        total_published = sum(published.values())
-
-        # Wait until the node accounted for every input, then for the final map/path publication.
-        print("[4/6] waiting for the node to process the last inputs", flush=True)
-
-        def received(diag):
-            return int(diag.get("inputs", 0)) + sum(int(diag.get(f"dropped.{r}", 0)) for r in PRE_BUFFER_DROPS)
-
-        # Done when every input is accounted for, or when nothing changed for a while (inputs lost).
-        settle = 2.5 * max(settings.map_publish_period, settings.diagnostics_period)
-        settle_until, last_seen, last_change = None, None, time.monotonic()
-        while time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-            diag = state["diag"]
-            if not diag:
-                continue
-            seen = (received(diag), int(diag.get("observation_updates", 0)))
-            if seen != last_seen:
-                last_seen, last_change = seen, time.monotonic()
-            idle = int(diag.get("queued_inputs", 1)) == 0
-            if idle and (received(diag) >= total_published or time.monotonic() - last_change > 3 * settle):
-                if settle_until is None:
-                    settle_until = time.monotonic() + settle
-                elif time.monotonic() > settle_until:
-                    break
-        diag = state["diag"] or {}
+        replay_out, replay_err = proc.communicate()
     finally:
-        if replay_proc is not None and replay_proc.poll() is None:
-            replay_proc.kill()
-        if node_proc.poll() is None:
-            node_proc.send_signal(signal.SIGINT)
-            try:
-                node_proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                node_proc.kill()
+        if proc.poll() is None:
+            proc.kill()
+    recording.replay_wall = time.monotonic() - started
+    if proc.returncode != 0:
+        raise RuntimeError(f"replay failed (code {proc.returncode}): {replay_err.strip()}")
+    summary = json.loads(replay_out.strip().splitlines()[-1])
+    recording.published = {t: int(summary["published"].get(t, 0)) for t in INPUT_TOPICS}
+
+
+def _wait_for_node(executor, recording: Recording, settings, deadline: float) -> None:
+    """Step 4: until every input is accounted for (or nothing changed for a while: inputs lost),
+    then a settle time for the final map and path publication."""
+    print("[4/6] waiting for the node to process the last inputs", flush=True)
+    settle = 2.5 * max(settings.map_publish_period, settings.diagnostics_period)
+    settle_until, last_seen, last_change = None, None, time.monotonic()
+    while time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+        diag = recording.diag
+        if not diag:
+            continue
+        seen = (recording.received(), int(diag.get("observation_updates", 0)))
+        if seen != last_seen:
+            last_seen, last_change = seen, time.monotonic()
+        idle = int(diag.get("queued_inputs", 1)) == 0
+        if idle and (recording.received() >= recording.total_published
+                     or time.monotonic() - last_change > 3 * settle):
+            if settle_until is None:
+                settle_until = time.monotonic() + settle
+            elif time.monotonic() > settle_until:
+                return
+
+
+def _stop(proc) -> None:
+    """SIGINT (a clean shutdown of the node), then kill if it does not exit."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def _record_node_run(setup: Setup, out: Path, domain: int, rate: float, timeout: float) -> Recording:
+    """Steps 2-4: node process, recorder in this process (own rclpy context), replay process."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    node_proc, node_log = _start_node(setup, out, domain)
+    context = Context()
+    rclpy.init(context=context)
+    recording = Recording()
+    try:
+        rec = rclpy.create_node("demo_recorder", context=context)
+        _subscribe(rec, recording)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(rec)
+        deadline = time.monotonic() + timeout
+        _replay(executor, node_proc, setup.bag, rate, deadline, out, recording)
+        _wait_for_node(executor, recording, setup.settings, deadline)
+    finally:
+        _stop(node_proc)
         node_log.close()
         rclpy.shutdown(context=context)
+    return recording
 
-    # ---------------------------------------------------------------- DDS results
-    got = received(diag) if diag else 0
-    drops = {k.split(".", 1)[1]: int(v) for k, v in diag.items() if k.startswith("dropped.")}
-    losses = {k: v for k, v in drops.items() if k in INPUT_LOSS_DROPS and v}
-    print(f"[5/6] evaluating the node's outputs ({len(poses)} ~/pose messages received)")
-    print(f"      published by the replay: {published} (total {total_published}, wall {replay_wall:.1f} s)")
+
+def _node_drops(recording: Recording) -> tuple[dict, dict]:
+    """The node's drop counters, and those of them that mean an input was lost or unused."""
+    drops = {k.split(".", 1)[1]: int(v) for k, v in recording.diag.items() if k.startswith("dropped.")}
+    return drops, {k: v for k, v in drops.items() if k in INPUT_LOSS_DROPS and v}
+
+
+def _check_inputs(recording: Recording) -> bool:
+    """Step 5a: did every published input reach the node, unused by none?"""
+    diag, got, total = recording.diag, recording.received(), recording.total_published
+    drops, losses = _node_drops(recording)
+    print(f"[5/6] evaluating the node's outputs ({len(recording.poses)} ~/pose messages received)")
+    print(f"      published by the replay: {recording.published} (total {total}, "
+          f"wall {recording.replay_wall:.1f} s)")
     print(f"      received by the node:    {got} (inputs {int(diag.get('inputs', 0))} + empty clouds "
           f"{drops.get('empty_cloud', 0)}), observation updates {int(diag.get('observation_updates', 0))}, "
           f"resets {int(diag.get('resets', 0))}")
     print(f"      node drop counters: {drops or 'none'}")
-    if got != total_published or losses or int(diag.get("resets", 0)):
-        print(f"      FAIL: inputs lost or unused: published {total_published}, received {got}, losses {losses}")
-        ok = False
-    else:
-        print("      OK: every published input reached the node and none was dropped "
-              "(empty clouds carry no observation; ambiguous/merged associations are estimator decisions)")
+    if got != total or losses or int(diag.get("resets", 0)):
+        print(f"      FAIL: inputs lost or unused: published {total}, received {got}, losses {losses}")
+        return False
+    print("      OK: every published input reached the node and none was dropped "
+          "(empty clouds carry no observation; ambiguous/merged associations are estimator decisions)")
+    return True
 
-    path = state["path"]
-    if path is not None and len(path.poses):
-        traj = np.array([(p.header.stamp.sec + 1e-9 * p.header.stamp.nanosec, p.pose.position.x,
-                          p.pose.position.y, _yaw(p.pose.orientation)) for p in path.poses])
+
+def _node_trajectory(recording: Recording) -> np.ndarray:
+    """(n, 4) t, x, y, yaw from ~/path (every kept pose), else from the ~/pose messages."""
+    from .quaternion import quaternion_to_yaw
+
+    def row(stamp, pose):
+        return (stamp.sec + 1e-9 * stamp.nanosec, pose.position.x, pose.position.y,
+                quaternion_to_yaw(pose.orientation))
+
+    if recording.path is not None and len(recording.path.poses):
+        traj = np.array([row(p.header.stamp, p.pose) for p in recording.path.poses])
     else:
-        traj = np.array([(m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec, m.pose.pose.position.x,
-                          m.pose.pose.position.y, _yaw(m.pose.pose.orientation)) for m in poses]).reshape(-1, 4)
-    traj = traj[np.argsort(traj[:, 0], kind="stable")]
-    cloud = state["landmarks"]
+        traj = np.array([row(m.header.stamp, m.pose.pose) for m in recording.poses]).reshape(-1, 4)
+    return traj[np.argsort(traj[:, 0], kind="stable")]
+
+
+def _node_map(cloud, confirm_observations: int):
+    """The node's last ~/landmarks cloud as a LandmarkMap (empty without one)."""
+    from .cloud import decode_message
+    from .core.types import LandmarkMap
+
     cols = decode_message(cloud) if cloud is not None else {k: np.zeros(0) for k in
                                                             ("x", "y", "id", "cov_xx", "cov_xy", "cov_yy", "n_obs")}
     positions = np.stack([cols["x"], cols["y"]], axis=1).astype(float)
     n_obs = np.asarray(cols["n_obs"], dtype=int)
-    confirmed = n_obs >= config.association.confirm_observations
-
     cov = np.zeros((len(positions), 2, 2))
     cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 0], cov[:, 1, 1] = (cols["cov_xx"], cols["cov_xy"], cols["cov_xy"],
                                                               cols["cov_yy"])
-    node_map = LandmarkMap(np.asarray(cols["id"], dtype=int), positions, cov, n_obs, confirmed)
+    return LandmarkMap(np.asarray(cols["id"], dtype=int), positions, cov, n_obs, n_obs >= confirm_observations)
 
-    offset = (config.sensor.offset_x, config.sensor.offset_y)
-    dds = {"method": "online_em (ROS node over DDS)", "bag": str(bag), "params": str(params), "seed": args.seed,
-           "replay_rate": args.rate, "initial_pose": initial.to_dict(),
-           "n_landmarks": int(len(positions)), "n_confirmed_landmarks": int(confirmed.sum()),
-           "messages": {"published": published, "published_total": total_published, "received_total": got,
-                        "node_inputs": int(diag.get("inputs", 0)), "pose_messages_received": len(poses),
+
+def _node_metrics(recording: Recording, setup: Setup, rate: float, traj: np.ndarray, node_map) -> dict:
+    """metrics.json of the node run: message accounting, landmark and trajectory errors."""
+    from .evaluation import landmark_metrics, sensor_points, trajectory_metrics
+
+    inputs, diag = setup.inputs, recording.diag
+    drops, losses = _node_drops(recording)
+    confirmed = np.asarray(node_map.confirmed, dtype=bool)
+    dds = {"method": "online_em (ROS node over DDS)", "bag": str(setup.bag), "params": str(setup.params),
+           "seed": setup.seed, "replay_rate": rate, "initial_pose": setup.initial.to_dict(),
+           "n_landmarks": int(len(node_map.ids)), "n_confirmed_landmarks": int(confirmed.sum()),
+           "messages": {"published": recording.published, "published_total": recording.total_published,
+                        "received_total": recording.received(), "node_inputs": int(diag.get("inputs", 0)),
+                        "pose_messages_received": len(recording.poses),
                         "observation_updates": int(diag.get("observation_updates", 0))},
-           "node_drops": drops, "input_losses": losses, "replay_wall_s": replay_wall,
-           "trajectory_source": "~/path (one pose per processed input)" if path is not None else "~/pose"}
+           "node_drops": drops, "input_losses": losses, "replay_wall_s": recording.replay_wall,
+           "trajectory_source": "~/path (one pose per processed input)" if recording.path is not None else "~/pose"}
     if inputs.landmarks is not None:
-        dds["landmarks"] = landmark_metrics(positions[confirmed], inputs.landmarks,
+        dds["landmarks"] = landmark_metrics(node_map.positions[confirmed], inputs.landmarks,
                                             estimated_ids=node_map.ids[confirmed]).to_dict()
     if inputs.has_gps and len(traj):
+        offset = (setup.config.sensor.offset_x, setup.config.sensor.offset_y)
         dds["trajectory"] = trajectory_metrics(traj[:, 0], sensor_points(traj[:, 1:4], offset),
                                                inputs.gps_times, inputs.gps_xy).to_dict()
-    cli.write_trajectory(out / "trajectory.csv", traj)
-    cli.write_landmarks(out / "landmarks.csv", node_map)
-    cli.json_dump(out / "metrics.json", dds)
-    cli.plot_map(out / "map.png", "online EM SLAM node (DDS replay): car_park", traj, positions, node_map.ids, confirmed,
-                 inputs.landmarks, inputs.gps_xy, offset)
+    return dds
 
-    # ---------------------------------------------------------------- offline run
+
+def _write_node_outputs(out: Path, recording: Recording, setup: Setup, rate: float):
+    """Step 5b: OUTPUT/{trajectory.csv, landmarks.csv, metrics.json, map.png} of the node run."""
+    from .plots import plot_map
+    from .report import json_dump, write_landmarks, write_trajectory
+
+    traj = _node_trajectory(recording)
+    node_map = _node_map(recording.landmarks, setup.config.association.confirm_observations)
+    dds = _node_metrics(recording, setup, rate, traj, node_map)
+    write_trajectory(out / "trajectory.csv", traj)
+    write_landmarks(out / "landmarks.csv", node_map)
+    json_dump(out / "metrics.json", dds)
+    plot_map(out / "map.png", "online EM SLAM node (DDS replay): car_park", traj, node_map.positions,
+             node_map.ids, node_map.confirmed, setup.inputs.landmarks, setup.inputs.gps_xy,
+             (setup.config.sensor.offset_x, setup.config.sensor.offset_y))
+    return dds, node_map
+
+
+def _run_offline(setup: Setup, out: Path) -> dict:
+    """Step 6: the offline runner (no DDS) on the same bag with the same settings."""
+    from .runner import run_one
+
     print("[6/6] offline runner on the same bag (no DDS)", flush=True)
-    offline = cli.run_one(inputs, config, settings, "online_em", initial, out / "offline",
-                          extra={"params": str(params)})
+    return run_one(setup.inputs, setup.config, "online_em", setup.initial, out / "offline",
+                   extra={"params": str(setup.params)})
 
+
+def _print_comparison(dds: dict, offline: dict, node_map, out: Path, replay_wall: float) -> None:
     def lm(m, key, digits=3):
         v = (m.get("landmarks") or {}).get(key)
         return "n/a" if v is None else (f"{v:.{digits}f}" if isinstance(v, float) else str(v))
@@ -296,17 +394,28 @@ def main(argv=None) -> int:
          f"{offline['n_landmarks']} ({offline['n_confirmed_landmarks']})"),
         ("wall time (s)", f"{replay_wall:.1f}", f"{offline['timing']['wall_time_s']:.1f}"),
     ])
+    positions = np.asarray(node_map.positions, dtype=float).reshape(-1, 2)
     off_lm = np.loadtxt(out / "offline" / "landmarks.csv", delimiter=",", skiprows=1, ndmin=2)
     if len(off_lm) == len(positions) and len(positions):
         order = np.argsort(node_map.ids)
         diff = np.abs(off_lm[np.argsort(off_lm[:, 0]), 1:3] - positions[order]).max()
         print(f"\n  largest landmark coordinate difference DDS vs offline: {diff:.2e} m")
     print(f"\nwrote {out}/trajectory.csv, landmarks.csv, metrics.json, map.png (node) and {out}/offline/ (offline)")
+
+
+def main(argv=None) -> int:
+    args = _parse_args(argv)
+    domain = _isolate_dds(args.domain_id)
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    params = Path(args.params) if args.params else find_params()
+    setup = _prepare(out / "car_park_bag", params, args.seed)
+    recording = _record_node_run(setup, out, domain, args.rate, args.timeout)
+    ok = _check_inputs(recording)
+    dds, node_map = _write_node_outputs(out, recording, setup, args.rate)
+    offline = _run_offline(setup, out)
+    _print_comparison(dds, offline, node_map, out, recording.replay_wall)
     return 0 if ok else 1
-
-
-def _yaw(q) -> float:
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
 if __name__ == "__main__":

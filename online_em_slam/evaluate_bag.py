@@ -35,13 +35,10 @@ import numpy as np
 
 from .evaluation import (DEFAULT_MATCH_GATE, initial_pose_from_gps, landmark_metrics, sensor_points,
                          trajectory_metrics)
+from .quaternion import quaternion_to_yaw
 
 GT_POSITION_TOPIC = "/ground_truth/position"
 GT_LANDMARKS_TOPIC = "/ground_truth/landmarks"
-
-
-def _yaw(q) -> float:
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
 def _absolute(topic: str) -> str:
@@ -68,7 +65,7 @@ def read_recorded(bag, pose_topic: str, landmarks_topic: str) -> Recorded:
             p = msg.pose.pose
             # Latched poses are re-delivered to late subscribers: keep strictly increasing stamps.
             if not rows or stamp > rows[-1][0]:
-                rows.append((stamp, p.position.x, p.position.y, _yaw(p.orientation)))
+                rows.append((stamp, p.position.x, p.position.y, quaternion_to_yaw(p.orientation)))
             frame = msg.header.frame_id
         else:
             last_cloud = msg
@@ -107,7 +104,7 @@ def read_truth(bag, settings) -> Truth:
         elif topic == odom_topic:
             p = msg.pose.pose
             odom_t.append(stamp)
-            odom.append((p.position.x, p.position.y, _yaw(p.orientation)))
+            odom.append((p.position.x, p.position.y, quaternion_to_yaw(p.orientation)))
         elif topic == GT_LANDMARKS_TOPIC and landmarks is None:
             cols = decode_message(msg, required=("x", "y"))
             landmarks = np.column_stack([cols["x"], cols["y"]]).astype(float)
@@ -140,7 +137,7 @@ def map_in_truth_frame(mode: str, truth: Truth, node_initial, sensor_offset) -> 
     if mode == "gps":
         return (0.0, 0.0, 0.0)
     if mode != "params":
-        from .cli import parse_pose
+        from .runner import parse_pose
         node_initial = parse_pose(mode)
     if len(truth.gps_times) < 2:
         raise ValueError("the truth bag has no GPS track to place the node's map frame")
@@ -218,15 +215,16 @@ def write_landmarks(path, cols: dict, xy: np.ndarray) -> None:
 
 def write_outputs(output: Path, recorded: Recorded, truth: Truth, to_truth, sensor_offset, metrics: dict,
                   confirm_observations: int, plot: bool) -> None:
-    from . import cli
+    from .plots import plot_map
+    from .report import json_dump, write_trajectory
     from .tum import write_run_tum
 
     output.mkdir(parents=True, exist_ok=True)
     poses = compose(to_truth, recorded.poses[:, 1:4])
     trajectory = np.column_stack([recorded.poses[:, 0], poses])
-    cli.write_trajectory(output / "trajectory.csv", trajectory)
+    write_trajectory(output / "trajectory.csv", trajectory)
     write_run_tum(output, trajectory, sensor_offset, truth.gps_times, truth.gps_xy)
-    cli.json_dump(output / "metrics.json", metrics)
+    json_dump(output / "metrics.json", metrics)
     cols = recorded.landmarks
     xy = np.zeros((0, 2))
     if cols is not None:
@@ -234,9 +232,9 @@ def write_outputs(output: Path, recorded: Recorded, truth: Truth, to_truth, sens
         write_landmarks(output / "landmarks.csv", cols, xy)
     if plot:
         confirmed = confirmed_mask(cols, confirm_observations) if cols is not None else None
-        cli.plot_map(output / "map.png", f"recorded run: {output.name}", trajectory, xy,
-                     cols.get("id") if cols is not None else None, confirmed, truth.landmarks, truth.gps_xy,
-                     sensor_offset)
+        plot_map(output / "map.png", f"recorded run: {output.name}", trajectory, xy,
+                 cols.get("id") if cols is not None else None, confirmed, truth.landmarks, truth.gps_xy,
+                 sensor_offset)
 
 
 def cmd_evaluate(args) -> int:

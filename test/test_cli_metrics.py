@@ -1,5 +1,5 @@
 """Shape and frame error in the offline runner's printed summary and comparison table."""
-from online_em_slam import cli
+from online_em_slam import report
 
 
 def _metrics(method: str) -> dict:
@@ -11,9 +11,9 @@ def _metrics(method: str) -> dict:
 
 
 def test_summary_and_comparison_report_shape_and_frame():
-    assert "RMSE 0.250 m (shape 0.150, frame 0.200)" in cli.summary_line(_metrics("online_em"))
-    rows = [cli.comparison_row(_metrics("online_em")), cli.comparison_row(_metrics("ekf_slam"))]
+    assert "RMSE 0.250 m (shape 0.150, frame 0.200)" in report.summary_line(_metrics("online_em"))
+    rows = [report.comparison_row(_metrics("online_em")), report.comparison_row(_metrics("ekf_slam"))]
     assert rows[0]["beacon_shape_error_m"] == 0.15 and rows[0]["beacon_frame_error_m"] == 0.2
-    text = cli.comparison_markdown(rows, "bag", "params.yaml", 0, 100)
+    text = report.comparison_markdown(rows, "bag", "params.yaml", 0, 100)
     assert "| beacon RMSE (m) | shape (m) | frame (m) |" in text
     assert "| ekf_slam | 15/15 | 1 | 0.250 | 0.150 | 0.200 |" in text

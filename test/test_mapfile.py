@@ -312,8 +312,8 @@ def test_confined_path(tmp_path):
 
 
 def test_metrics_json_is_not_written_through_a_planted_symlink(tmp_path):
-    """cli.json_dump (metrics.json of every run) used the predictable name metrics.json.tmp."""
-    from online_em_slam.cli import json_dump
+    """report.json_dump (metrics.json of every run) used the predictable name metrics.json.tmp."""
+    from online_em_slam.report import json_dump
     victim = tmp_path / "victim.txt"
     victim.write_text("precious\n")
     (tmp_path / "metrics.json.tmp").symlink_to(victim)

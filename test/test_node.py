@@ -32,11 +32,7 @@ from online_em_slam.cloud import decode_message  # noqa: E402
 from online_em_slam.ros import conversions as conv  # noqa: E402
 from online_em_slam.ros.node import OnlineEmSlamNode, latched_qos  # noqa: E402
 from online_em_slam.ros.params import ParameterError  # noqa: E402
-
-try:
-    from online_em_slam.simulation import ScenarioConfig, simulate
-except ImportError:  # pragma: no cover - the simulator is written by another helper
-    simulate = None
+from online_em_slam.simulation import ScenarioConfig, simulate  # noqa: E402
 
 NAME = "online_em_slam"
 T0 = 1000.0            # stamps start here (a zero stamp means "unstamped" for controls)
@@ -164,35 +160,14 @@ def landmark_table(msg: PointCloud2) -> dict:
 # ----------------------------------------------------------------- scenario
 def scenario(n_steps=300):
     """Steps of (control stamp, control, scan stamp, ranges, bearings, ids), truth and initial pose."""
-    if simulate is not None:
-        sc = simulate(ScenarioConfig(n_steps=n_steps, seed=1))
-        steps = [(T0 + s.control_stamp, s.control, T0 + s.stamp, s.ranges, s.bearings, s.ids) for s in sc.steps]
-        params = {"motion.wheelbase": sc.config.wheelbase, "motion.sigma_speed": sc.config.sigma_speed,
-                  "motion.sigma_steering": sc.config.sigma_steering,
-                  "motion.noise_reference_period": sc.config.dt, "sensor.max_range": sc.config.max_range,
-                  "noise.sigma_range": sc.config.sigma_range, "noise.sigma_bearing": sc.config.sigma_bearing,
-                  "noise.rho": sc.config.rho}
-        return steps, sc.true_poses, sc.landmarks, sc.initial_pose, params
-    # Fallback: a circle among landmarks, bicycle model, wheelbase 4 m.
-    rng = np.random.default_rng(1)
-    dt, v, steer, B = 0.2, 3.0, 0.12, 4.0
-    landmarks = np.array([[r * math.cos(a), 20 + r * math.sin(a)] for a in np.linspace(0, 2 * np.pi, 10,
-                          endpoint=False) for r in (12.0, 30.0)])
-    pose = np.array([0.0, 0.0, 0.0])
-    poses, steps = [pose.copy()], []
-    for k in range(n_steps):
-        pose = pose + [v * dt * math.cos(pose[2] + steer), v * dt * math.sin(pose[2] + steer),
-                       v * dt * math.sin(steer) / B]
-        poses.append(pose.copy())
-        d = landmarks - pose[:2]
-        r = np.hypot(d[:, 0], d[:, 1])
-        b = np.arctan2(d[:, 1], d[:, 0]) - pose[2]
-        b = np.arctan2(np.sin(b), np.cos(b))
-        seen = np.flatnonzero((r < 30) & (np.abs(b) < np.pi / 2))
-        control = np.array([v, steer]) + rng.standard_normal(2) * [0.5, math.pi / 60]
-        steps.append((T0 + k * dt, control, T0 + (k + 1) * dt, r[seen] + 0.5 * rng.standard_normal(seen.size),
-                      b[seen] + math.pi / 60 * rng.standard_normal(seen.size), seen))
-    return steps, np.array(poses), landmarks, poses[0], {"motion.wheelbase": B}
+    sc = simulate(ScenarioConfig(n_steps=n_steps, seed=1))
+    steps = [(T0 + s.control_stamp, s.control, T0 + s.stamp, s.ranges, s.bearings, s.ids) for s in sc.steps]
+    params = {"motion.wheelbase": sc.config.wheelbase, "motion.sigma_speed": sc.config.sigma_speed,
+              "motion.sigma_steering": sc.config.sigma_steering,
+              "motion.noise_reference_period": sc.config.dt, "sensor.max_range": sc.config.max_range,
+              "noise.sigma_range": sc.config.sigma_range, "noise.sigma_bearing": sc.config.sigma_bearing,
+              "noise.rho": sc.config.rho}
+    return steps, sc.true_poses, sc.landmarks, sc.initial_pose, params
 
 
 # ----------------------------------------------------------------- tests

@@ -104,13 +104,10 @@ def test_every_accepted_initial_pose_std_survives_a_reset():
 # ----------------------------------------------------------------- observation clouds
 def make_cloud(columns: dict, layout) -> "PointCloud2":
     from sensor_msgs.msg import PointCloud2, PointField
-    from online_em_slam.cloud import encode
-    specs, step, data = encode(columns, layout)
-    n = len(data) // step
-    msg = PointCloud2(height=1, width=n, point_step=step, row_step=step * n, is_bigendian=False,
-                      fields=[PointField(name=f.name, offset=f.offset, datatype=f.datatype, count=1) for f in specs])
-    msg.data = data
-    return msg
+    from std_msgs.msg import Header
+
+    from online_em_slam.cloud import build_message
+    return build_message(PointCloud2, PointField, Header(), columns, layout)
 
 
 def test_uint8_range_field_is_refused_as_malformed():

@@ -215,7 +215,7 @@ def test_replay_of_car_park_into_a_live_node_loses_nothing(tmp_path):
     every input reaches the node, none is dropped, and the beacon map is right."""
     from sensor_msgs.msg import PointCloud2
 
-    from online_em_slam.cli import choose_initial_pose, read_inputs
+    from online_em_slam.runner import choose_initial_pose, read_inputs
     from online_em_slam.evaluation import landmark_metrics
     from online_em_slam.kth.convert import convert
     from online_em_slam.paramfile import config_from_params, load_params

@@ -179,16 +179,11 @@ def _write_truth_bag(path, track, landmarks):
 
 def _landmark_cloud(xy, n_obs):
     from sensor_msgs.msg import PointCloud2, PointField
+    from std_msgs.msg import Header
 
-    from online_em_slam.cloud import LANDMARK_FIELDS, encode
+    from online_em_slam.cloud import LANDMARK_FIELDS, build_message
     cols = {"x": xy[:, 0], "y": xy[:, 1], "z": np.zeros(len(xy)), "id": np.arange(len(xy)), "n_obs": n_obs}
-    specs, step, data = encode(cols, layout=LANDMARK_FIELDS)
-    msg = PointCloud2(height=1, width=len(xy), is_bigendian=False, point_step=step, row_step=step * len(xy),
-                      data=data, is_dense=True,
-                      fields=[PointField(name=f.name, offset=f.offset, datatype=f.datatype, count=f.count)
-                              for f in specs])
-    msg.header.frame_id = "map"
-    return msg
+    return build_message(PointCloud2, PointField, Header(frame_id="map"), cols, LANDMARK_FIELDS)
 
 
 def _finish(proc, timeout: float = 30.0):

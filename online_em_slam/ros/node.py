@@ -174,7 +174,6 @@ class OnlineEmSlamNode(Node):
         self._latencies: list[float] = []
         self._last_ess = float("nan")
         self._resets = 0
-        self._last_reset_reason = ""
         self._drops_reported = 0
 
     def _create_topics(self, s) -> None:
@@ -605,7 +604,6 @@ class OnlineEmSlamNode(Node):
             self._map_dirty = True
             self._last_ess = float("nan")
             self._resets += 1
-            self._last_reset_reason = reason
             self.get_logger().warning(f"estimate reset: {reason}")
 
     # ------------------------------------------------------------------ services

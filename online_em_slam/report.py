@@ -1,0 +1,162 @@
+"""Evaluation and report files of an offline run: metrics.json content, CSV outputs, summary and comparison tables.
+
+Plots are in :mod:`online_em_slam.plots`; the run itself in :mod:`online_em_slam.runner`.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .core.config import SlamConfig
+from .evaluation import DEFAULT_MATCH_GATE, landmark_metrics, sensor_points, timing_metrics, trajectory_metrics
+
+TRAJECTORY_HEADER = ("t", "x", "y", "yaw")
+LANDMARK_HEADER = ("id", "x", "y", "cov_xx", "cov_xy", "cov_yy", "n_obs")
+
+
+def evaluate(result, inputs, config: SlamConfig, match_gate: float = DEFAULT_MATCH_GATE,
+             align: bool = False) -> dict:
+    """metrics.json content for a run (runner.RunResult on runner.BagInputs)."""
+    lm = result.landmarks
+    confirmed = np.asarray(lm.n_obs) >= config.association.confirm_observations
+    metrics: dict = {
+        "n_landmarks": int(len(lm)),
+        "n_confirmed_landmarks": int(np.count_nonzero(confirmed)),
+        "n_observation_messages": result.n_observation_messages,
+        "timing": timing_metrics(result.durations, result.dataset_duration, result.wall_time).to_dict(),
+        "drops": {k: int(v) for k, v in sorted(result.drops.items())},
+        "runner_skipped": result.skipped,
+    }
+    if inputs.landmarks is not None:
+        lmm = landmark_metrics(np.asarray(lm.positions)[confirmed], inputs.landmarks, gate=match_gate,
+                               estimated_ids=np.asarray(lm.ids)[confirmed])
+        metrics["landmarks"] = lmm.to_dict()
+        metrics["landmarks"]["evaluated"] = "confirmed (n_obs >= association.confirm_observations)"
+    if inputs.has_gps and len(result.trajectory):
+        traj = result.trajectory
+        points = sensor_points(traj[:, 1:4], (config.sensor.offset_x, config.sensor.offset_y))
+        tm = trajectory_metrics(traj[:, 0], points, inputs.gps_times, inputs.gps_xy, align=align)
+        metrics["trajectory"] = tm.to_dict()
+        metrics["trajectory"]["compared_point"] = "sensor point (pose + R(yaw) sensor offset) vs GPS"
+    return metrics
+
+
+# --------------------------------------------------------------------------- files
+
+def write_trajectory(path, trajectory: np.ndarray) -> None:
+    with open(path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(TRAJECTORY_HEADER)
+        for t, x, y, yaw in trajectory:
+            writer.writerow((f"{t:.9f}", f"{x:.6f}", f"{y:.6f}", f"{yaw:.8f}"))
+
+
+def write_landmarks(path, landmarks) -> None:
+    with open(path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(LANDMARK_HEADER)
+        pos = np.asarray(landmarks.positions, dtype=float).reshape(-1, 2)
+        cov = np.asarray(landmarks.covariances, dtype=float).reshape(-1, 2, 2)
+        for i in range(len(pos)):
+            writer.writerow((int(landmarks.ids[i]), f"{pos[i, 0]:.6f}", f"{pos[i, 1]:.6f}",
+                             f"{cov[i, 0, 0]:.9g}", f"{cov[i, 0, 1]:.9g}", f"{cov[i, 1, 1]:.9g}",
+                             int(landmarks.n_obs[i])))
+
+
+def write_noise_params(path, learned_parameters: dict, file_values: dict, learned: dict) -> None:
+    """DIR/noise.yaml: the run's parameter file with the noise it ended with (learned once warmed up).
+
+    A parameter file a user passes back with ``--params`` (or to the node):
+    the values of the file the run was given, the learned noise.* and motion.*
+    standard deviations overlaid (the motion scale s folded in as sqrt(s)).
+    """
+    import yaml  # noqa: PLC0415
+    values = dict(file_values)
+    values.update(learned_parameters)
+    shown = {k: learned[k] for k in ("sigma_range", "sigma_bearing", "rho", "range_growth", "mixture_weights",
+                                     "mixture_scales", "motion_scale", "observations", "motion_steps")}
+    header = ("# Noise learned online by `online-em-slam run` (docs/METHOD.md, \"Noise learned online\").\n"
+              "# The run's parameter file with the noise.* values and the motion noise stds it ended with\n"
+              "# (learned ones once warmed up); pass it back with --params or to the node.\n"
+              f"# learned: {json.dumps(shown)}\n")
+    body = yaml.safe_dump({"/**": {"ros__parameters": values}}, sort_keys=False, default_flow_style=None, width=100)
+    from .core.mapfile import write_bytes_atomic  # noqa: PLC0415
+    write_bytes_atomic(path, (header + body).encode())
+
+
+def json_dump(path, data) -> None:
+    # Atomic and fsynced, through an unpredictable temporary name: a predictable
+    # "metrics.json.tmp" could be a planted symlink that sends the write elsewhere.
+    from .core.mapfile import write_bytes_atomic  # noqa: PLC0415
+    write_bytes_atomic(path, (json.dumps(data, indent=2, sort_keys=False) + "\n").encode())
+
+
+# --------------------------------------------------------------------------- summaries
+
+def summary_line(metrics: dict) -> str:
+    parts = [f"{metrics['method']}:"]
+    lm = metrics.get("landmarks")
+    if lm:
+        parts.append(f"landmarks {lm['n_matched']}/{lm['n_true']} mapped, {lm['n_spurious']} spurious, "
+                     f"RMSE {_fmt(lm['rmse'])} m (shape {_fmt(lm.get('shape_error'))}, "
+                     f"frame {_fmt(lm.get('frame_error'))});")
+    tr = metrics.get("trajectory")
+    if tr:
+        parts.append(f"trajectory RMSE {_fmt(tr['rmse'])} m (median {_fmt(tr['median'])}, max {_fmt(tr['max'])});")
+    tm = metrics["timing"]
+    parts.append(f"{metrics['n_landmarks']} landmarks ({metrics['n_confirmed_landmarks']} confirmed); "
+                 f"{_fmt(tm['mean_step_ms'], 2)} ms/step (p99 {_fmt(tm['p99_step_ms'], 2)}), "
+                 f"real-time factor {_fmt(tm['real_time_factor'], 1)} (wall {_fmt(tm['wall_time_s'], 1)} s "
+                 f"for {_fmt(tm['dataset_duration_s'], 1)} s)")
+    return " ".join(parts)
+
+
+def _fmt(value, digits: int = 3) -> str:
+    return "n/a" if value is None or (isinstance(value, float) and not math.isfinite(value)) else f"{value:.{digits}f}"
+
+
+COMPARISON_COLUMNS = ("method", "beacons mapped", "spurious", "beacon RMSE (m)", "shape (m)", "frame (m)",
+                      "trajectory RMSE (m)", "mean ms/step", "real-time factor")
+
+
+def comparison_row(metrics: dict) -> dict:
+    lm, tr, tm = metrics.get("landmarks"), metrics.get("trajectory"), metrics["timing"]
+    return {
+        "method": metrics["method"],
+        "beacons_mapped": None if lm is None else lm["n_matched"],
+        "beacons_true": None if lm is None else lm["n_true"],
+        "spurious": None if lm is None else lm["n_spurious"],
+        "beacon_rmse_m": None if lm is None else lm["rmse"],
+        "beacon_shape_error_m": None if lm is None else lm.get("shape_error"),
+        "beacon_frame_error_m": None if lm is None else lm.get("frame_error"),
+        "trajectory_rmse_m": None if tr is None else tr["rmse"],
+        "trajectory_median_m": None if tr is None else tr["median"],
+        "n_landmarks": metrics["n_landmarks"],
+        "n_confirmed_landmarks": metrics["n_confirmed_landmarks"],
+        "mean_ms_per_step": tm["mean_step_ms"],
+        "p99_ms_per_step": tm["p99_step_ms"],
+        "real_time_factor": tm["real_time_factor"],
+    }
+
+
+def comparison_markdown(rows: list[dict], bag: str, params: str, seed, particles) -> str:
+    lines = [f"# Method comparison on `{Path(bag).name}`", "",
+             f"Params `{params}`, seed {seed}, {particles} particles (particle methods); "
+             "landmark metrics over confirmed landmarks, one-to-one matching within the match gate "
+             "(shape: RMSE after the best rigid 2-D fit onto the truth; frame = sqrt(RMSE^2 - shape^2)); "
+             "trajectory error of the sensor point against GPS, no alignment.", "",
+             "| " + " | ".join(COMPARISON_COLUMNS) + " |", "|" + "---|" * len(COMPARISON_COLUMNS)]
+    for r in rows:
+        mapped = "n/a" if r["beacons_mapped"] is None else f"{r['beacons_mapped']}/{r['beacons_true']}"
+        spurious = "n/a" if r["spurious"] is None else str(r["spurious"])
+        lines.append(f"| {r['method']} | {mapped} | {spurious} | {_fmt(r['beacon_rmse_m'])} | "
+                     f"{_fmt(r['beacon_shape_error_m'])} | {_fmt(r['beacon_frame_error_m'])} | "
+                     f"{_fmt(r['trajectory_rmse_m'])} | {_fmt(r['mean_ms_per_step'], 2)} | "
+                     f"{_fmt(r['real_time_factor'], 1)} |")
+    return "\n".join(lines) + "\n"
+
+

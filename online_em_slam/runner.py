@@ -1,0 +1,254 @@
+"""Offline runs: a bag straight into an estimator (no DDS), deterministic for a seed.
+
+The bag is read with rosbags (no rclpy) and fed through the node's own input
+path (:mod:`online_em_slam.pipeline`: stamp checks, the (stamp, kind) ordered
+merge of the streams, the feeder), so the estimator sees the identical sequence
+of inputs as the node.  Observation clouds are read by the node's reader
+(:func:`online_em_slam.cloud.observations_from_message`) and odometry
+orientations by the node's quaternion check (:mod:`online_em_slam.quaternion`).
+What the input path or the readers refuse is counted by reason
+(``runner_skipped`` in metrics.json).  The command line is :mod:`online_em_slam.cli`.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import plots, report
+from .cloud import CloudFormatError, decode_message, observations_from_message
+from .core.config import SlamConfig
+from .evaluation import DEFAULT_MATCH_GATE, InitialPose, initial_pose_from_gps
+from .pipeline import CONTROL, OBSERVATIONS, ODOMETRY, Feeder, InputPath
+from .quaternion import odometry_yaw
+from .tum import write_run_tum
+
+METHODS = ("online_em", "ekf_slam", "fastslam2", "marginal_slam")
+GT_POSITION_TOPIC = "/ground_truth/position"
+GT_LANDMARKS_TOPIC = "/ground_truth/landmarks"
+
+
+def _absolute(topic: str) -> str:
+    return topic if topic.startswith("/") else "/" + topic
+
+
+# --------------------------------------------------------------------------- bag -> inputs
+
+@dataclass
+class BagInputs:
+    """Everything a run needs from a bag, in log-time order (read once, reused by compare)."""
+
+    path: str
+    events: list                          # (kind, stamp, payload), kind as in online_em_slam.pipeline
+    odom_times: np.ndarray
+    odom_poses: np.ndarray
+    gps_times: np.ndarray
+    gps_xy: np.ndarray
+    landmarks: np.ndarray | None          # (K, 2) surveyed landmarks
+    landmark_ids: np.ndarray | None
+    topics: dict = field(default_factory=dict)
+    refused: Counter = field(default_factory=Counter)   # inputs the readers refused, by reason
+    motion_source: str = "odom"           # which motion input drives the estimator (node setting)
+    jump_threshold: float = 1.0           # node setting time_jump_threshold (stamp outliers)
+
+    @property
+    def has_gps(self) -> bool:
+        return len(self.gps_times) >= 2
+
+
+class _BagReader:
+    """Collects a bag's messages into BagInputs, one handler per topic."""
+
+    def __init__(self, settings):
+        self.motion_source = settings.motion_source
+        self.handlers = {_absolute(settings.observations_topic): self.observations,
+                         _absolute(settings.odom_topic): self.odometry,
+                         GT_POSITION_TOPIC: self.gps, GT_LANDMARKS_TOPIC: self.surveyed_landmarks}
+        if settings.motion_source == "control":
+            self.handlers[_absolute(settings.control_topic)] = self.control
+        self.events, self.odom_t, self.odom_p, self.gps_t, self.gps_xy = [], [], [], [], []
+        self.landmarks = self.landmark_ids = None
+        self.refused: Counter = Counter()
+        self.counts: Counter = Counter()
+
+    def odometry(self, stamp: float, msg) -> None:
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        yaw, problem = odometry_yaw(q)
+        if problem == "degenerate_quaternion":        # the node refuses these too
+            self.refused[problem] += 1
+            return
+        pose = (float(p.x), float(p.y), yaw)
+        self.odom_t.append(stamp)
+        self.odom_p.append(pose)
+        if self.motion_source == "odom":
+            self.events.append((ODOMETRY, stamp, pose))
+
+    def control(self, stamp: float, msg) -> None:
+        self.events.append((CONTROL, stamp, (float(msg.twist.linear.x), float(msg.twist.angular.z))))
+
+    def observations(self, stamp: float, msg) -> None:
+        try:
+            self.events.append((OBSERVATIONS, stamp, observations_from_message(msg, drops=self.refused)))
+        except CloudFormatError:
+            self.refused["malformed_cloud"] += 1
+
+    def gps(self, stamp: float, msg) -> None:
+        self.gps_t.append(stamp)
+        self.gps_xy.append((float(msg.point.x), float(msg.point.y)))
+
+    def surveyed_landmarks(self, stamp: float, msg) -> None:
+        if self.landmarks is not None:                # latched: the first copy is the survey
+            return
+        cols = decode_message(msg, required=("x", "y"))
+        self.landmarks = np.stack([cols["x"], cols["y"]], axis=1).astype(float)
+        self.landmark_ids = np.asarray(cols["id"], dtype=int) if "id" in cols else np.arange(len(self.landmarks))
+
+
+def read_inputs(bag, settings) -> BagInputs:
+    """Read the motion, observation and ground-truth topics of ``bag`` (settings: NodeSettings)."""
+    from .bagio import read_bag
+
+    reader = _BagReader(settings)
+    for topic, stamp, msg in read_bag(bag, set(reader.handlers)):
+        reader.counts[topic] += 1
+        reader.handlers[topic](stamp, msg)
+    return BagInputs(str(bag), reader.events, np.asarray(reader.odom_t, dtype=float),
+                     np.asarray(reader.odom_p, dtype=float).reshape(-1, 3), np.asarray(reader.gps_t, dtype=float),
+                     np.asarray(reader.gps_xy, dtype=float).reshape(-1, 2), reader.landmarks,
+                     reader.landmark_ids, dict(reader.counts), reader.refused, settings.motion_source,
+                     settings.time_jump_threshold)
+
+
+# --------------------------------------------------------------------------- initial pose
+
+def parse_pose(text: str) -> tuple[float, float, float]:
+    parts = [float(v) for v in text.split(",")]
+    if len(parts) != 3 or not all(math.isfinite(v) for v in parts):
+        raise ValueError(f"expected X,Y,YAW, got {text!r}")
+    return parts[0], parts[1], parts[2]
+
+
+def choose_initial_pose(mode: str, inputs: BagInputs, config: SlamConfig, settings, file_values: dict
+                        ) -> InitialPose:
+    """``--initial-pose`` (see :mod:`online_em_slam.cli`): auto, params, gps or X,Y,YAW."""
+    start = inputs.events[0][1] if inputs.events else 0.0
+    sets_pose = any(k.startswith("initial_pose.") for k in file_values)
+    if mode == "auto":
+        mode = "params" if sets_pose else ("gps" if inputs.has_gps else "params")
+    if mode == "params":
+        x, y, yaw = settings.initial_pose
+        return InitialPose(x, y, yaw, start, "params file" if sets_pose else "default (0, 0, 0)")
+    if mode == "gps":
+        if not inputs.has_gps:
+            raise ValueError(f"--initial-pose gps: the bag has no {GT_POSITION_TOPIC}")
+        odom = (inputs.odom_times, inputs.odom_poses) if len(inputs.odom_times) >= 2 else (None, None)
+        return initial_pose_from_gps(inputs.gps_times, inputs.gps_xy, (config.sensor.offset_x, config.sensor.offset_y),
+                                     start, odom[0], odom[1])
+    x, y, yaw = parse_pose(mode)
+    return InitialPose(x, y, yaw, start, "command line")
+
+
+# --------------------------------------------------------------------------- running
+
+def make_estimator(method: str, config: SlamConfig, initial_pose):
+    if method == "online_em":
+        from .core import OnlineEMSlam
+        return OnlineEMSlam(config, initial_pose=initial_pose)
+    if method == "ekf_slam":
+        from .baselines import EkfSlam
+        return EkfSlam(config, initial_pose=initial_pose)
+    if method == "fastslam2":
+        from .baselines import FastSlam2
+        return FastSlam2(config, initial_pose=initial_pose)
+    if method == "marginal_slam":
+        from .baselines import MarginalSlam
+        return MarginalSlam(config, initial_pose=initial_pose)
+    raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+
+
+@dataclass
+class RunResult:
+    method: str
+    trajectory: np.ndarray                # (n, 4): t, x, y, yaw
+    landmarks: object                     # LandmarkMap
+    durations: list
+    wall_time: float
+    dataset_duration: float
+    drops: dict
+    skipped: dict
+    n_observation_messages: int
+
+
+def motion_streams(motion_source: str) -> tuple[int, ...]:
+    """The input streams that are merged: the motion input that drives the estimator and the observations."""
+    return (ODOMETRY if motion_source == "odom" else CONTROL, OBSERVATIONS)
+
+
+def feed(estimator, inputs: BagInputs) -> RunResult:
+    """Feed the events through the node's input path; record the pose after every observation message.
+
+    The bag stands for streams that never fall silent (no wall clock): the merge
+    waits for every stream and the end of the bag releases the rest.
+    """
+    path = InputPath(motion_streams(inputs.motion_source), silence=math.inf,
+                     jump_threshold=inputs.jump_threshold, restart_on_jump_back=False)
+    feeder = Feeder(estimator, inputs.motion_source, path.drops)
+    durations, rows = [], []
+    started = time.perf_counter()
+    for kind, stamp, payload in inputs.events:
+        for item in path.push(kind, stamp, payload, 0.0).released:
+            _feed_one(feeder, item, durations, rows)
+    for item in path.flush():
+        _feed_one(feeder, item, durations, rows)
+    wall = time.perf_counter() - started
+    stamps = [stamp for _, stamp, _ in inputs.events]
+    skipped = {k: int(v) for k, v in path.drops.items() if v}
+    skipped.update({k: int(v) for k, v in inputs.refused.items() if v})
+    n_obs_msgs = sum(kind == OBSERVATIONS for kind, _, _ in inputs.events)
+    return RunResult("", np.asarray(rows, dtype=float).reshape(-1, 4), estimator.landmarks(), durations, wall,
+                     (max(stamps) - min(stamps)) if stamps else 0.0, dict(estimator.drops), skipped, n_obs_msgs)
+
+
+def _feed_one(feeder: Feeder, item, durations: list, rows: list) -> None:
+    fed = feeder.apply(item)
+    if fed.report is not None:
+        durations.append(fed.report.duration)
+    if fed.trajectory_point is not None:
+        rows.append(fed.trajectory_point)
+
+
+def run_one(inputs: BagInputs, config: SlamConfig, method: str, initial: InitialPose, output: Path,
+            plot: bool = True, match_gate: float = DEFAULT_MATCH_GATE, align: bool = False,
+            extra: dict | None = None, param_values: dict | None = None) -> dict:
+    """Run ``method`` on the inputs; write DIR/trajectory.csv, landmarks.csv, metrics.json [, noise.yaml, map.png].
+
+    ``param_values``: the parameter file's values, the base of noise.yaml.
+    """
+    output.mkdir(parents=True, exist_ok=True)
+    estimator = make_estimator(method, config, initial.pose)
+    result = feed(estimator, inputs)
+    result.method = method
+    metrics = {"method": method, "bag": inputs.path, **(extra or {}),
+               "seed": config.filter.seed, "num_particles": config.filter.num_particles,
+               "motion_model": config.motion.model, "initial_pose": initial.to_dict()}
+    metrics.update(report.evaluate(result, inputs, config, match_gate, align))
+    offset = (config.sensor.offset_x, config.sensor.offset_y)
+    report.write_trajectory(output / "trajectory.csv", result.trajectory)
+    write_run_tum(output, result.trajectory, offset, inputs.gps_times, inputs.gps_xy)   # TUM files for evo
+    report.write_landmarks(output / "landmarks.csv", result.landmarks)
+    if hasattr(estimator, "learned_noise"):                  # online EM: the noise it ended with
+        metrics["noise_learned"] = estimator.learned_noise()
+        report.write_noise_params(output / "noise.yaml", estimator.learned_noise_parameters(), param_values or {},
+                                  metrics["noise_learned"])
+    report.json_dump(output / "metrics.json", metrics)
+    if plot:
+        lm = result.landmarks
+        plots.plot_map(output / "map.png", f"{method}: {Path(inputs.path).name}", result.trajectory,
+                       np.asarray(lm.positions).reshape(-1, 2), lm.ids,
+                       np.asarray(lm.n_obs) >= config.association.confirm_observations,
+                       inputs.landmarks, inputs.gps_xy, offset)
+    return metrics
