@@ -115,32 +115,9 @@ def batch_estimate(scenario, config: SlamConfig | None = None, n_landmarks: int 
         n_landmarks = len(scenario.landmarks)
     if n_landmarks is None:
         n_landmarks = 1 + max((int(s.true_ids.max()) for s in steps if len(s.true_ids)), default=-1)
-    X = lambda k: gtsam.symbol("x", k)          # noqa: E731
-    L = lambda j: gtsam.symbol("l", j)          # noqa: E731
-
     initial, landmark_guess = dead_reckoning(scenario, config, n_landmarks)
-    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    graph.add(gtsam.PriorFactorPose2(X(0), gtsam.Pose2(*initial[0]),
-                                     gtsam.noiseModel.Diagonal.Sigmas(np.asarray(initial_pose_std, float))))
-    values.insert(X(0), gtsam.Pose2(*initial[0]))
-    for k, step in enumerate(steps, start=1):
-        increment, body_cov = relative_motion(config, np.asarray(step.control, float),
-                                              float(step.stamp - step.control_stamp))
-        graph.add(gtsam.BetweenFactorPose2(X(k - 1), X(k), gtsam.Pose2(*increment),
-                                           gtsam.noiseModel.Gaussian.Covariance(
-                                               tangent_covariance(increment, body_cov))))
-        values.insert(X(k), gtsam.Pose2(*initial[k]))
-        if not len(step.ranges):
-            continue
-        bearings = wrap_angle(np.asarray(step.bearings) + sensor.offset_yaw)
-        R = noise_covariance(config.noise, step.ranges)
-        for r, b, j, Rj in zip(step.ranges, np.atleast_1d(bearings), step.true_ids, R):
-            if not 0 <= j < n_landmarks:
-                continue
-            # GTSAM orders the BearingRange measurement as (bearing, range).
-            cov = np.array([[Rj[1, 1], Rj[0, 1]], [Rj[1, 0], Rj[0, 0]]])
-            graph.add(gtsam.BearingRangeFactor2D(X(k), L(int(j)), gtsam.Rot2(float(b)), float(r),
-                                                 gtsam.noiseModel.Gaussian.Covariance(cov)))
+    graph, values = _factor_graph(gtsam, scenario, config, n_landmarks, initial, initial_pose_std)
+    X, L = _symbols(gtsam)
     observed = np.flatnonzero(np.isfinite(landmark_guess[:, 0]))
     for j in observed:
         values.insert(L(int(j)), gtsam.Point2(float(landmark_guess[j, 0]), float(landmark_guess[j, 1])))
@@ -160,3 +137,38 @@ def batch_estimate(scenario, config: SlamConfig | None = None, n_landmarks: int 
                        initial_landmarks=landmark_guess,
                        initial_error=float(graph.error(values)), final_error=float(graph.error(result)),
                        iterations=int(optimizer.iterations()))
+
+
+def _symbols(gtsam):
+    """Keys of pose k and landmark j."""
+    return (lambda k: gtsam.symbol("x", k)), (lambda j: gtsam.symbol("l", j))
+
+
+def _factor_graph(gtsam, scenario, config: SlamConfig, n_landmarks: int, initial: np.ndarray,
+                  initial_pose_std) -> tuple:
+    """(B1) prior and between factors from the controls, (B2) bearing-range factors; pose values."""
+    X, L = _symbols(gtsam)
+    sensor = config.sensor
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    graph.add(gtsam.PriorFactorPose2(X(0), gtsam.Pose2(*initial[0]),
+                                     gtsam.noiseModel.Diagonal.Sigmas(np.asarray(initial_pose_std, float))))
+    values.insert(X(0), gtsam.Pose2(*initial[0]))
+    for k, step in enumerate(scenario.steps, start=1):
+        increment, body_cov = relative_motion(config, np.asarray(step.control, float),
+                                              float(step.stamp - step.control_stamp))
+        graph.add(gtsam.BetweenFactorPose2(X(k - 1), X(k), gtsam.Pose2(*increment),
+                                           gtsam.noiseModel.Gaussian.Covariance(
+                                               tangent_covariance(increment, body_cov))))
+        values.insert(X(k), gtsam.Pose2(*initial[k]))
+        if not len(step.ranges):
+            continue
+        bearings = wrap_angle(np.asarray(step.bearings) + sensor.offset_yaw)
+        R = noise_covariance(config.noise, step.ranges)
+        for r, b, j, Rj in zip(step.ranges, np.atleast_1d(bearings), step.true_ids, R):
+            if not 0 <= j < n_landmarks:
+                continue
+            # GTSAM orders the BearingRange measurement as (bearing, range).
+            cov = np.array([[Rj[1, 1], Rj[0, 1]], [Rj[1, 0], Rj[0, 0]]])
+            graph.add(gtsam.BearingRangeFactor2D(X(k), L(int(j)), gtsam.Rot2(float(b)), float(r),
+                                                 gtsam.noiseModel.Gaussian.Covariance(cov)))
+    return graph, values
