@@ -6,8 +6,10 @@
         --output results/laps --compare-with results/laps/results.json
 
 For each seeded replication of the simulator, every method runs on the same
-inputs: online EM with each smoother, Block Online EM and its averaged
-variant, FastSLAM 2.0, EKF-SLAM, and the GTSAM batch maximum-likelihood
+inputs: online EM and Block Online EM with the default observed-information
+M-step (``online_em``, ``boem``), the seed's complete-data M-step with each
+smoother and block variant (``*_complete*``), marginal-SLAM, FastSLAM 2.0,
+EKF-SLAM, and the GTSAM batch maximum-likelihood
 reference (skipped with a note when gtsam is not installed).  Every method is
 scored by its landmark RMSE and its split into *shape* (RMSE after the best
 rigid 2-D fit of the estimated map onto the truth) and *frame*
@@ -44,12 +46,18 @@ from .core.angles import wrap_angle
 from .evaluation import landmark_pairs_by_id, map_error_split
 from .simulation import Scenario, ScenarioConfig, feed, simulate, slam_config_for
 
+# online_em / boem: the default observed-information M-step (no smoother needed);
+# *_complete*: the seed's complete-data M-step with each smoother.  (Before
+# 2026-11-22 the complete-data variants were named online_em_forward,
+# online_em_paris, online_em_ancestry, boem and boem_averaged.)
 ONLINE_METHODS = {
-    "online_em_forward": dict(smoother="forward", algorithm="online"),
-    "online_em_paris": dict(smoother="paris", algorithm="online"),
-    "online_em_ancestry": dict(smoother="ancestry", algorithm="online"),
-    "boem": dict(smoother="forward", algorithm="block"),
-    "boem_averaged": dict(smoother="forward", algorithm="block_averaged"),
+    "online_em": dict(m_step="observed", smoother="forward", algorithm="online"),
+    "boem": dict(m_step="observed", smoother="forward", algorithm="block"),
+    "online_em_complete_forward": dict(m_step="complete", smoother="forward", algorithm="online"),
+    "online_em_complete_paris": dict(m_step="complete", smoother="paris", algorithm="online"),
+    "online_em_complete_ancestry": dict(m_step="complete", smoother="ancestry", algorithm="online"),
+    "boem_complete": dict(m_step="complete", smoother="forward", algorithm="block"),
+    "boem_averaged_complete": dict(m_step="complete", smoother="forward", algorithm="block_averaged"),
 }
 # marginal_slam: the online-EM particle filter with the map by recursive ML (baselines/marginal_slam.py);
 # it shares the online methods' filter, so --set applies to it too.
@@ -110,6 +118,7 @@ def apply_overrides(config: SlamConfig, overrides: list[str] | tuple[str, ...]) 
 def make_estimator(method: str, config: SlamConfig, scenario: Scenario, overrides=()):
     if method in ONLINE_METHODS:
         options = ONLINE_METHODS[method]
+        config.em.m_step = options["m_step"]
         config.filter.smoother = options["smoother"]
         config.em.algorithm = options["algorithm"]
         config = apply_overrides(config, overrides)
@@ -445,11 +454,11 @@ def _pool_map(function, jobs: list, workers: int) -> list:
 
 
 def run_em_passes(scenario: Scenario, particles: int, seed: int, passes: int, overrides=()) -> list[float]:
-    """Landmark RMSE after each of ``passes`` passes of online EM (forward smoother)
+    """Landmark RMSE after each of ``passes`` passes of complete-data online EM (forward smoother)
     over the same data, each pass starting from the previous pass's map: batch
     EM iterations, which show how far one online pass is from the EM fixed point."""
     config = slam_config_for(scenario, num_particles=particles, seed=seed)
-    estimator = make_estimator("online_em_forward", config, scenario, overrides)
+    estimator = make_estimator("online_em_complete_forward", config, scenario, overrides)
     rmse = []
     for index in range(passes):
         if index:

@@ -19,7 +19,7 @@ def test_overrides_are_typed_validated_and_reach_the_online_em_config():
         with pytest.raises(ValueError):
             benchmark.apply_overrides(slam_config_for(ScenarioConfig()), [bad])
     scenario = simulate(ScenarioConfig(n_steps=5))
-    estimator = benchmark.make_estimator("online_em_paris", slam_config_for(scenario, 10), scenario,
+    estimator = benchmark.make_estimator("online_em_complete_paris", slam_config_for(scenario, 10), scenario,
                                          ["em.segment_length=4"])
     assert estimator.config.em.segment_length == 4 and estimator.config.filter.smoother == "paris"
 
@@ -44,7 +44,7 @@ def _row(method, seed, laps, rmse, shape=0.1, frame=0.2):
 
 
 def test_summary_and_paired_differences_by_method_laps_and_seed():
-    a = [_row("ekf_slam", s, 1, 2.0 + s) for s in range(4)] + [_row("online_em_forward", 0, 1, 5.0)]
+    a = [_row("ekf_slam", s, 1, 2.0 + s) for s in range(4)] + [_row("online_em", 0, 1, 5.0)]
     b = [_row("ekf_slam", s, 1, 1.5 + s + 0.1 * (s % 2)) for s in range(5)]       # seed 4 has no pair
     table = benchmark.summarize(a)
     ekf = next(r for r in table if r["method"] == "ekf_slam")
