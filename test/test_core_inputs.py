@@ -74,3 +74,35 @@ def test_merging_of_new_landmarks_keeps_the_first_of_close_pairs():
     positions = np.array([[0.0, 0.0], [0.5, 0.0], [5.0, 0.0], [5.2, 0.1], [20.0, 0.0]])
     kept, index = slam._dedupe_new(positions, np.arange(5))
     np.testing.assert_array_equal(index, [0, 2, 4])
+
+
+def _run_with_reset(m_step, reset):
+    from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for
+    scenario = simulate(ScenarioConfig(seed=0, n_steps=300))
+    config = slam_config_for(scenario)
+    config.em.m_step = m_step
+    slam = OnlineEMSlam(config, initial_pose=scenario.initial_pose, stamp=0.0)
+    for step in scenario.steps[:200]:
+        feed(slam, step)
+    before = slam.landmarks()
+    if reset:
+        slam.set_pose(slam.pose().mean + np.array([0.3, -0.2, 0.02]), std=(0.5, 0.5, 0.05))
+    for step in scenario.steps[200:]:
+        feed(slam, step)
+    return slam, before, scenario
+
+
+@pytest.mark.parametrize("m_step", ["observed", "complete"])
+def test_set_pose_moves_the_robot_and_keeps_the_map(m_step):
+    """A pose reset (as from /initialpose) 0.36 m off: the map is kept, no landmark is
+    duplicated, and the run ends about where the same run without the reset does."""
+    slam, before, scenario = _run_with_reset(m_step, True)
+    reference, _, _ = _run_with_reset(m_step, False)
+    after = slam.landmarks()
+    assert set(before.ids) <= set(after.ids) and len(set(after.ids)) == len(after)
+    assert np.all(np.isfinite(after.positions))
+    truth = scenario.true_poses[-1][:2]
+    assert (np.linalg.norm(slam.pose().mean[:2] - truth)
+            < np.linalg.norm(reference.pose().mean[:2] - truth) + 1.0)
+    with pytest.raises(ValueError):
+        slam.set_pose((0.0, np.nan, 0.0))

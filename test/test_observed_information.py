@@ -185,3 +185,16 @@ def test_first_estimate_jacobians_keep_the_map_rotation_unobserved(problem):
     factors, so only the first-pose prior fixes the map's orientation."""
     assert _gauge_residual(True, problem) < 1e-9
     assert _gauge_residual(False, problem) > 1e-4
+
+
+def test_restarting_the_key_pose_keeps_the_map_and_unties_the_pose(problem):
+    """A teleport (initial-pose message): the map's solution is unchanged, the new key
+    pose is tied to nothing but its prior."""
+    xbar, thetabar, controls, observations = problem
+    est = _estimator(xbar, controls, observations, 10, 5, thetabar)
+    theta_before, _ = est.solve()
+    est.restart_key(np.array([3.0, -2.0, 0.5]), np.array([0.2, 0.2, 0.05]))
+    theta_after, dx = est.solve()
+    assert np.max(np.abs(theta_after - theta_before)) < 1e-8
+    assert np.max(np.abs(dx)) < 1e-12
+    assert not est.info[:3, 3:].any()

@@ -180,6 +180,15 @@ class CompleteDataEM:
         table.theta[target] = theta[update]
         self.stats[target] = stats[update]
 
+    def restart_pose(self, pose: np.ndarray, pose_std, table: LandmarkTable,
+                     weights: np.ndarray | None = None) -> None:
+        """The filter was re-initialised: the new particles share no ancestry with the
+        old ones, so each landmark's statistic restarts as the old weighted mean S."""
+        if self.tau.shape[1]:
+            w = np.full(self.tau.shape[0], 1.0 / self.tau.shape[0]) if weights is None else weights
+            self.tau[:] = weighted_sum(w, self.tau)[None]
+        self.differing[:] = False
+
     # ------------------------------------------------------------ uncertainty
     def covariances(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
         """Measurement part q A^-1 plus the spread of the per-particle solutions, which

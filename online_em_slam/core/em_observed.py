@@ -97,6 +97,13 @@ class ObservedInformationEM:
         self.block_end = step + 1 + int(np.ceil(em.block_initial_length * self.block_index ** em.block_growth))
         return True
 
+    def restart_pose(self, pose: np.ndarray, pose_std, table: LandmarkTable) -> None:
+        """The filter was re-initialised at ``pose``: fold the open segment in, then
+        restart the key pose without a motion link (ObservedInformation.restart_key)."""
+        self.system.close_segment(table.theta)
+        self.steps_in_segment = 0
+        self.system.restart_key(pose, pose_std)
+
     # ------------------------------------------------------------ uncertainty
     def covariances(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
         inverse, det = inv_det_2x2(self.information[rows])

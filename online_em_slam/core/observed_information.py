@@ -223,6 +223,24 @@ class ObservedInformation:
             # the whole shift into the next motion factor's yaw lever.
             self.key_first = self.key_pose.copy()
 
+    def restart_key(self, pose: np.ndarray, pose_std) -> None:
+        """The robot was put at ``pose`` (an initial-pose message, a relocalisation):
+        no motion links it to the old key pose, which is integrated out; the new key
+        pose enters with the prior N(pose, diag(pose_std)^2) and no tie to the map."""
+        if self.segment:
+            raise RuntimeError("close the segment before restarting the key pose")
+        n = self.info.shape[0]
+        self.info, self.vector = marginalize(self.info, self.vector, np.arange(POSE_DIM, n), np.arange(POSE_DIM))
+        std = np.maximum(np.asarray(pose_std, dtype=float), MIN_PRIOR_STD)
+        info = np.zeros((n, n))
+        info[:POSE_DIM, :POSE_DIM] = np.diag(1.0 / std ** 2)
+        info[POSE_DIM:, POSE_DIM:] = self.info
+        self.info = info
+        self.vector = np.concatenate([np.zeros(POSE_DIM), self.vector])
+        self.key_pose = np.asarray(pose, dtype=float).copy()
+        self.key_first = self.key_pose.copy()
+        self._covariance_cache = None
+
     def landmark_covariances(self) -> np.ndarray | None:
         """Marginal covariances (M, 2, 2) of the map: diagonal blocks of info^-1."""
         if self._covariance_cache is None:

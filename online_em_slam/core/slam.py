@@ -134,6 +134,30 @@ class OnlineEMSlam:
         self.reset(initial_pose, stamp)
         self._restore_map(saved)
 
+    def set_pose(self, pose, std=None) -> None:
+        """Put the robot at ``pose`` (an initial-pose message, a relocalisation after
+        loading a map): the particles restart around it with ``std`` (default
+        ``filter.initial_pose_std``); the map and its statistics stay."""
+        pose = np.asarray(pose, dtype=float).reshape(-1)
+        std = np.asarray(self.config.filter.initial_pose_std if std is None else std, dtype=float).reshape(-1)
+        if pose.shape != (3,) or std.shape != (3,) or not (np.all(np.isfinite(pose)) and np.all(np.isfinite(std))):
+            raise ValueError(f"set_pose needs a finite (x, y, yaw) and 3 finite stds, got {pose} and {std}")
+        self._flush_motion()
+        weights, _ = normalize_log_weights(self._log_w)
+        restart = getattr(self._m_step, "restart_pose", None)
+        if isinstance(self._m_step, CompleteDataEM):
+            restart(pose, std, self._map, weights)
+        elif restart is not None:
+            restart(pose, std, self._map)
+        n = self._particles.shape[0]
+        particles = pose + self._rng.standard_normal((n, 3)) * np.abs(std)
+        particles[:, 2] = wrap_angle(particles[:, 2])
+        self._particles, self._log_w = particles, np.full(n, -np.log(n))
+        self._pred_mean, self._pred_cov = particles.copy(), np.zeros((n, 3, 3))
+        self._reset_track(pose)
+        self._resample_pending, self._ess = False, float(n)
+        self._anchor_time = self._input.last_stamp
+
     @property
     def last_stamp(self) -> float | None:
         return self._input.last_stamp
