@@ -57,6 +57,8 @@ from ..core.slam import OnlineEMSlam
 from ..pipeline import CONTROL, KIND_NAME, OBSERVATIONS, ODOMETRY, Fed, Feeder, InputPath, LoadMonitor
 from ..core.mapfile import confined_path
 from . import conversions as conv
+from .initial_pose import pose_and_std
+from .input_watch import InputWatch
 from .path_history import PathHistory
 from .params import ParameterError, build, current_values, declare_parameters
 
@@ -163,6 +165,7 @@ class OnlineEmSlamNode(Node):
         self._last_tf_ns = -1
         self._path = PathHistory(s.path_max_length, s.path_publish_max_poses)
         self._corrected: Counter = Counter()       # inputs used after a repair (normalised quaternions)
+        self._watch = InputWatch()                 # silent input streams turn diagnostics WARN
         self._map_dirty = True
 
         # Statistics.
@@ -197,6 +200,9 @@ class OnlineEmSlamNode(Node):
                                                          qos, event_callbacks=self._events(s.control_topic))
         self._obs_sub = self.create_subscription(PointCloud2, s.observations_topic, self._on_observations,
                                                  qos, event_callbacks=self._events(s.observations_topic))
+        # RViz's "2D Pose Estimate" and AMCL users publish here; remap to move it.
+        self._initial_pose_sub = self.create_subscription(PoseWithCovarianceStamped, "/initialpose",
+                                                          self._on_initial_pose, QoSProfile(depth=1))
 
     def _create_timers(self, s) -> None:
         # Timers run on the steady clock: they rate-limit work, independent of sim time.
@@ -269,6 +275,7 @@ class OnlineEmSlamNode(Node):
     # with a readable stamp tells the path its stream is alive, used or not.
     def _on_odom(self, msg: Odometry) -> None:
         started = time.monotonic()
+        self._watch.heard(self._settings.odom_topic, started)
         stamp = conv.stamp_to_sec(msg.header.stamp)
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
         yaw, quaternion_problem = conv.odometry_yaw(q)
@@ -295,6 +302,7 @@ class OnlineEmSlamNode(Node):
 
     def _on_control(self, msg: TwistStamped) -> None:
         started = time.monotonic()
+        self._watch.heard(self._settings.control_topic, started)
         control = np.array([msg.twist.linear.x, msg.twist.angular.z], dtype=float)
         stamp = conv.stamp_to_sec(msg.header.stamp)
         with self._lock:
@@ -309,6 +317,7 @@ class OnlineEmSlamNode(Node):
 
     def _on_observations(self, msg: PointCloud2) -> None:
         started = time.monotonic()
+        self._watch.heard(self._settings.observations_topic, started)
         stamp = conv.stamp_to_sec(msg.header.stamp)
         with self._lock:
             try:
@@ -321,6 +330,24 @@ class OnlineEmSlamNode(Node):
             # An empty cloud goes through the merge too: it says "nothing seen up to here".
             self._input(OBSERVATIONS, stamp, observations, started)
             self._load.add(time.monotonic(), time.monotonic() - started)
+
+    def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        """Relocalise: the particles restart around the given pose, the map stays."""
+        s = self._settings
+        pose, std, problem = pose_and_std(msg, self._config.filter.initial_pose_std)
+        with self._lock:
+            if problem is not None:
+                self._drop(problem)
+                self.get_logger().warning(f"ignored /initialpose: {problem}")
+                return
+            if msg.header.frame_id not in ("", s.map_frame):
+                self._drop("initial_pose_wrong_frame")
+                self.get_logger().warning(f"ignored /initialpose in frame '{msg.header.frame_id}', "
+                                          f"expected '{s.map_frame}'")
+                return
+            self._slam.set_pose(pose, std)
+            self.get_logger().info(f"pose set to ({pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.3f}) "
+                                   f"from /initialpose; the map is kept")
 
     def _refuse(self, kind: int, stamp: float, reason: str, what: str, started: float) -> None:
         """An input whose payload is unusable: counted, and its stamp still advances its stream."""
@@ -545,6 +572,10 @@ class OnlineEmSlamNode(Node):
                 message += f", {total - self._drops_reported} inputs dropped in the last {span:.1f} s"
             elif self._updates == 0:
                 message = "waiting for observations"
+            stale = self._watch.stale(time.monotonic(), self._settings.input_delay)
+            if stale and not self._paused:
+                level = DiagnosticStatus.WARN
+                message += "; silent inputs: " + ", ".join(f"{name} for {age:.1f} s" for name, age in stale)
             self._drops_reported = total
             self._window_start, self._window_updates, self._window_inputs = now, 0, 0
             self._latencies = []

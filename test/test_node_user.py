@@ -1,0 +1,77 @@
+"""What a ROS user reaches for first (issue 11), live: /initialpose relocalises the
+robot and keeps the map; a stopped input turns /diagnostics to WARN within 2 s."""
+import os
+import time
+
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "OFF"
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+rclpy = pytest.importorskip("rclpy")
+
+from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402
+from geometry_msgs.msg import PoseWithCovarianceStamped  # noqa: E402
+from std_msgs.msg import Header  # noqa: E402
+from test_node import T0, Harness  # noqa: E402
+
+from online_em_slam.ros import conversions as conv  # noqa: E402
+
+
+@pytest.fixture
+def ros():
+    harness = Harness()
+    try:
+        yield harness
+    finally:
+        harness.close()
+
+
+def _drive(ros, steps, t0=0.0):
+    """Odometry at 20 Hz along x at 1 m/s, a landmark at (10, 0) seen every 0.2 s."""
+    for k in range(steps):
+        t = t0 + 0.05 * k
+        ros.odom(T0 + t, t, 0.0, 0.0)
+        if k % 4 == 0:
+            ros.cloud(T0 + t, [10.0 - t], [0.0], [1])
+        ros.spin_for(0.005)
+    return t0 + 0.05 * steps
+
+
+def _initial_pose(x, y, yaw, frame="map"):
+    msg = PoseWithCovarianceStamped(header=Header(frame_id=frame))
+    msg.pose.pose.position.x, msg.pose.pose.position.y = float(x), float(y)
+    msg.pose.pose.orientation = conv.yaw_to_quaternion(yaw)
+    msg.pose.covariance[0] = msg.pose.covariance[7] = 0.01
+    msg.pose.covariance[35] = 1e-4
+    return msg
+
+
+def test_initialpose_moves_the_pose_and_keeps_the_map(ros):
+    node = ros.start()
+    publisher = ros.tester.create_publisher(PoseWithCovarianceStamped, "/initialpose", 1)
+    t = _drive(ros, 40)
+    assert ros.spin_until(lambda: len(node._slam.landmarks()) == 1)
+    landmark = node._slam.landmarks().positions[0].copy()
+    assert ros.spin_until(lambda: publisher.get_subscription_count() > 0)
+    publisher.publish(_initial_pose(t + 1.0, 0.5, 0.1))
+    assert ros.spin_until(lambda: abs(node._slam.pose().mean[1] - 0.5) < 0.2, timeout=5.0)
+    lm = node._slam.landmarks()
+    assert len(lm) == 1 and np.allclose(lm.positions[0], landmark)
+    publisher.publish(_initial_pose(0.0, 0.0, 0.0, frame="odom"))         # wrong frame: refused
+    assert ros.spin_until(lambda: node.all_drops().get("initial_pose_wrong_frame", 0) == 1, timeout=5.0)
+
+
+def test_a_stopped_input_turns_diagnostics_to_warn_within_two_seconds(ros):
+    ros.start(input_delay=0.5, diagnostics_period=0.2)
+    _drive(ros, 30)
+
+    def levels():
+        return [s.level for m in ros.received["diagnostics"] for s in m.status]
+
+    ros.received["diagnostics"].clear()
+    stopped = time.monotonic()
+    assert ros.spin_until(lambda: DiagnosticStatus.WARN in levels(), timeout=2.0)
+    assert time.monotonic() - stopped < 2.0
+    warn = [s for m in ros.received["diagnostics"] for s in m.status if s.level == DiagnosticStatus.WARN][0]
+    assert "silent inputs" in warn.message and "odom for" in warn.message
