@@ -1,6 +1,6 @@
 """Marginal-SLAM (Martinez-Cantin 2008): the map by recursive maximum likelihood.
 
-Same model as online EM (ALGORITHM.md section 1): the pose X_t is the hidden
+Same model as online EM (docs/METHOD.md, "Model"): the pose X_t is the hidden
 state, tracked by the project's particle filter (same motion model, proposal,
 association and weights), and the map theta is a parameter.  Instead of an EM
 M-step, theta climbs the log-likelihood by stochastic gradient:

@@ -1,6 +1,6 @@
 """The seed's M-step: theta_k = A_k^-1 b_k on smoothed complete-data statistics.
 
-ALGORITHM.md sections 2-3.  Each particle carries tau^i (N, M, 5), the
+docs/METHOD.md, "Complete-data M-step".  Each particle carries tau^i (N, M, 5), the
 expectation of the accumulated statistics (S) given its pose; a smoother
 (forward-only, PaRIS or ancestry) carries tau from the particles at t-1 to
 those at t, then the step's statistics are blended in with the step size

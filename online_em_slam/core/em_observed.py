@@ -1,6 +1,6 @@
 """The observed-information M-step: a Newton step of the map with the poses integrated out.
 
-ALGORITHM.md section 6, docs/METHOD.md.  The particle filter stays the E-step:
+docs/METHOD.md, "Observed-information M-step".  The particle filter stays the E-step:
 it supplies the weighted mean pose xbar_t (the linearisation point), the
 association and the mixture responsibilities.  Each filter step adds its
 motion and observation factors to observed_information.ObservedInformation;

@@ -54,7 +54,7 @@ def _heading_noise(config: MotionConfig, dt: float) -> float:
 
 
 def bicycle(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):
-    """Seed bicycle model, control u = (v, psi), wheelbase B (ALGORITHM.md section 1):
+    """Seed bicycle model, control u = (v, psi), wheelbase B (docs/METHOD.md, "Model"):
 
     X' = X + (v dt cos(phi + psi), v dt sin(phi + psi), v dt sin(psi) / B).
     """

@@ -1,7 +1,7 @@
 """Range-bearing observation model, its Jacobians and noise laws.
 
 All functions broadcast over leading axes, so one call serves every particle and
-every landmark.  Notation of ALGORITHM.md section 1: pose X = (x, y, phi),
+every landmark.  Notation of docs/METHOD.md: pose X = (x, y, phi),
 landmark theta_k in R^2, observation y = h(X, theta_k) + W with
 h = (|theta_k - p|, atan2(dy, dx) - phi), p the sensor position.
 """
@@ -43,7 +43,7 @@ def predict_observation(sensor_pose: np.ndarray, landmarks: np.ndarray) -> np.nd
 
 
 def landmark_jacobian(sensor_pose: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
-    """H = dh/dtheta = [[dx/r, dy/r], [-dy/q, dx/q]] with q = r^2 (ALGORITHM.md section 1).
+    """H = dh/dtheta = [[dx/r, dy/r], [-dy/q, dx/q]] with q = r^2 (docs/METHOD.md, "Model").
 
     The distance is clamped at ``MIN_DISTANCE`` so a landmark on top of the
     sensor gives a large but finite Jacobian instead of NaN.

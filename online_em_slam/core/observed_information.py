@@ -1,6 +1,6 @@
 """Observed information of the map: the joint Gauss-Newton system with the poses integrated out.
 
-ALGORITHM.md section 6 / docs/METHOD.md "Observed-information M-step".  Under the
+docs/METHOD.md, "Observed-information M-step".  Under the
 seed's local linearisation, the log-likelihood of the map is, to second order,
 what remains of the joint least-squares problem over (poses, map) once the
 poses are integrated out (a Schur complement).  Its curvature is the *observed*

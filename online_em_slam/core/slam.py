@@ -1,4 +1,4 @@
-"""Particle online EM SLAM: the public estimator (ALGORITHM.md sections 2-4, 6).
+"""Particle online EM SLAM: the public estimator (docs/METHOD.md).
 
 The pose is the hidden state of an HMM and is tracked by a particle filter;
 the landmark map theta is a parameter, updated by an M-step piece
@@ -286,7 +286,7 @@ class OnlineEMSlam:
 
     # ------------------------------------------------------------------ filter step
     def _filter_step(self, obs: Observations | None, report: StepReport | None = None) -> None:
-        """One particle-filter step and EM update (ALGORITHM.md sections 2-3, 6)."""
+        """One particle-filter step and EM update (docs/METHOD.md, "Filter step")."""
         report = report if report is not None else StepReport()
         self._flush_motion()
         ancestors, log_prior = self._select_ancestors()

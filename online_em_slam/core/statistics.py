@@ -1,6 +1,6 @@
 """E-step sufficient statistics, their smoothing over particles, and the M-step.
 
-Per observation of landmark k at pose X (ALGORITHM.md section 1), with H the
+Per observation of landmark k at pose X (docs/METHOD.md, "Model"), with H the
 Jacobian of h in theta at the current estimate theta_bar and P = R^-1 (the
 mixture weighs R_c^-1 by the responsibilities):
 
