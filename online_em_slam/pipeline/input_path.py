@@ -76,6 +76,10 @@ class InputPath:
             self.sequencer.heard(kind, float(stamp), wall)
         return self.sequencer.release(wall)
 
+    def on_time_line(self, kind: int, stamp: float) -> bool:
+        """``stamp`` is finite and not a candidate jump (a lone bad stamp the guard would hold)."""
+        return math.isfinite(stamp) and not self.guard.is_jump(Input(float(stamp), kind))
+
     def watch(self, kind: int, stamp: float) -> None:
         """A periodic stream that is not merged (odometry while control drives the motion): count its losses."""
         if math.isfinite(stamp):

@@ -290,14 +290,22 @@ class OnlineEmSlamNode(Node):
                 return
             if quaternion_problem:                   # used after normalisation: counted, not dropped
                 self._corrected[quaternion_problem] += 1
-            self._remember_odometry(stamp, pose)
+            # A lone bad stamp (0, far future) must not stamp ~/pose or map -> odom: one
+            # pose at 2^31 s would hold back every later one.
+            on_time_line = self._inputs_path.on_time_line(ODOMETRY, stamp)
+            if on_time_line:
+                self._remember_odometry(stamp, pose)
             if self._motion_kind == ODOMETRY:
                 self._input(ODOMETRY, stamp, pose, started)
             else:
                 self._inputs += 1            # odometry only places map -> odom and ~/pose
                 self._window_inputs += 1
-                self._inputs_path.watch(ODOMETRY, stamp)
-            self._publish_odometry_pose(stamp, pose)
+                if on_time_line:
+                    self._inputs_path.watch(ODOMETRY, stamp)
+                else:
+                    self._drop("stamp_outlier")
+            if on_time_line:
+                self._publish_odometry_pose(stamp, pose)
             self._load.add(time.monotonic(), time.monotonic() - started)
 
     def _on_control(self, msg: TwistStamped) -> None:
