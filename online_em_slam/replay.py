@@ -81,6 +81,99 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _publishers(node, reader, args, log):
+    """One publisher per replayed topic, with the recorded type and latching; the
+    connections to play, publishers, skipped topics (why), per-topic counts."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    conns = [c for c in reader.connections if (args.topics is None or c.topic in args.topics)
+             and replay_options.selected(args, c.topic)]
+    if args.topics:
+        missing = sorted(set(args.topics) - {c.topic for c in reader.connections})
+        if missing:
+            log(f"replay: topics not in the bag: {', '.join(missing)}")
+    publishers, skipped, counts = {}, {}, {}
+    for conn in conns:
+        if conn.topic in publishers or conn.topic in skipped:
+            continue
+        try:
+            cls = message_class(conn.msgtype)
+        except (ImportError, AttributeError, ValueError) as exc:
+            skipped[conn.topic] = f"{conn.msgtype}: {exc}"
+            log(f"replay: skipping {conn.topic} ({conn.msgtype} not importable)")
+            continue
+        latched = _is_latched(conn) or conn.topic == "/tf_static"
+        qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=100000, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+        publishers[conn.topic] = node.create_publisher(cls, replay_options.remap(args, conn.topic), qos)
+        counts[conn.topic] = 0
+    return [c for c in conns if c.topic in publishers], publishers, skipped, counts
+
+
+def _wait_for_subscribers(node, publishers, wait: dict, timeout: float, log) -> int:
+    """0 when every topic reached its subscriber count in time, 3 otherwise (replay starts anyway).
+    Discovery runs in the middleware's own threads, so plain sleeping is enough."""
+    exit_code = 0
+    deadline = time.monotonic() + timeout
+    for topic, want in wait.items():
+        def have(topic=topic):
+            pub = publishers.get(topic)
+            return pub.get_subscription_count() if pub is not None else node.count_subscribers(topic)
+        while have() < want and time.monotonic() < deadline:
+            time.sleep(0.02)
+        if have() < want:
+            log(f"replay: timeout: {topic} has {have()} of {want} subscribers; starting anyway")
+            exit_code = 3
+        else:
+            log(f"replay: {topic} has {have()} subscriber(s)")
+    return exit_code
+
+
+def _play(args, reader, conns, node, publishers, counts, log) -> float:
+    """Publish the raw messages paced by their log times (and /clock); the wall seconds taken."""
+    clock_pub, Clock = None, None
+    if args.clock:
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from rosgraph_msgs.msg import Clock
+        clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    total = sum(c.msgcount for c in conns)
+    start_wall = last_report = time.monotonic()
+    bag_start = last_clock = None
+    n = 0
+    # replay_options.messages paces the messages (rate, pause, loop, offset) and sends /clock.
+    for conn, log_time, raw in replay_options.messages(args, reader, conns, node, log):
+        bag_start = log_time if bag_start is None else bag_start
+        if args.rate > 0:
+            delay = start_wall + (log_time - bag_start) * 1e-9 / args.rate - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        if clock_pub is not None and (last_clock is None or log_time > last_clock):
+            clock = Clock()
+            clock.clock.sec, clock.clock.nanosec = divmod(int(log_time), 1_000_000_000)
+            clock_pub.publish(clock)
+            last_clock = log_time
+        publishers[conn.topic].publish(bytes(raw))
+        counts[conn.topic] += 1
+        n += 1
+        now = time.monotonic()
+        if now - last_report >= 1.0:
+            last_report = now
+            log(f"replay: {n}/{total} messages, bag time {(log_time - bag_start) * 1e-9:.1f} s, "
+                f"wall {now - start_wall:.1f} s")
+    return time.monotonic() - start_wall
+
+
+def _acknowledged(publishers, timeout: float, log) -> bool:
+    """Whether reliable subscribers acknowledged every message within ``timeout`` seconds."""
+    from rclpy.duration import Duration
+    acked = True
+    for pub in publishers.values():
+        if pub.get_subscription_count() > 0:
+            acked &= bool(pub.wait_for_all_acked(Duration(seconds=timeout)))
+    if not acked:
+        log("replay: not every message was acknowledged within --ack-timeout")
+    return acked
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -92,10 +185,7 @@ def main(argv=None) -> int:
     if not bag.exists():
         print(f"online-em-slam-replay: error: bag {bag} does not exist", file=sys.stderr)
         return 1
-
     import rclpy
-    from rclpy.duration import Duration
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from rosbags.rosbag2 import Reader
 
     def log(text: str) -> None:
@@ -104,99 +194,20 @@ def main(argv=None) -> int:
 
     rclpy.init(args=None)
     node = rclpy.create_node("bag_replay")
-    publishers, skipped = {}, {}
-    counts: dict[str, int] = {}
-    exit_code = 0
+    counts, skipped, elapsed, acked, exit_code = {}, {}, float("nan"), False, 0
     try:
         with Reader(bag) as reader:
-            conns = [c for c in reader.connections if (args.topics is None or c.topic in args.topics)
-                     and replay_options.selected(args, c.topic)]
-            if args.topics:
-                missing = sorted(set(args.topics) - {c.topic for c in reader.connections})
-                if missing:
-                    log(f"replay: topics not in the bag: {', '.join(missing)}")
-            for conn in conns:
-                if conn.topic in publishers or conn.topic in skipped:
-                    continue
-                try:
-                    cls = message_class(conn.msgtype)
-                except (ImportError, AttributeError, ValueError) as exc:
-                    skipped[conn.topic] = f"{conn.msgtype}: {exc}"
-                    log(f"replay: skipping {conn.topic} ({conn.msgtype} not importable)")
-                    continue
-                latched = _is_latched(conn) or conn.topic == "/tf_static"
-                qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=100000,
-                                 reliability=ReliabilityPolicy.RELIABLE,
-                                 durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
-                                 else DurabilityPolicy.VOLATILE)
-                publishers[conn.topic] = node.create_publisher(cls, replay_options.remap(args, conn.topic), qos)
-                counts[conn.topic] = 0
-            clock_pub = None
-            if args.clock:
-                from rosgraph_msgs.msg import Clock
-                clock_pub = node.create_publisher(
-                    Clock, "/clock", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
-
-            # Wait for subscribers (discovery runs in the middleware's own threads).
-            deadline = time.monotonic() + args.wait_timeout
-            for topic, want in wait.items():
-                def have(topic=topic):
-                    pub = publishers.get(topic)
-                    return pub.get_subscription_count() if pub is not None else node.count_subscribers(topic)
-                while have() < want and time.monotonic() < deadline:
-                    time.sleep(0.02)
-                if have() < want:
-                    log(f"replay: timeout: {topic} has {have()} of {want} subscribers; starting anyway")
-                    exit_code = 3
-                else:
-                    log(f"replay: {topic} has {have()} subscriber(s)")
+            conns, publishers, skipped, counts = _publishers(node, reader, args, log)
+            exit_code = _wait_for_subscribers(node, publishers, wait, args.wait_timeout, log)
             if args.start_delay > 0:
                 time.sleep(args.start_delay)
-
-            total = sum(c.msgcount for c in conns if c.topic in publishers)
-            conns = [c for c in conns if c.topic in publishers]
-            start_wall = time.monotonic()
-            bag_start = None
-            last_clock = None
-            last_report = start_wall
-            n = 0
-            # replay_options.messages paces the messages (rate, pause, loop, offset) and sends /clock.
-            for conn, log_time, raw in replay_options.messages(args, reader, conns, node, log):
-                if bag_start is None:
-                    bag_start = log_time
-                if args.rate > 0:
-                    due = start_wall + (log_time - bag_start) * 1e-9 / args.rate
-                    delay = due - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
-                if clock_pub is not None and (last_clock is None or log_time > last_clock):
-                    clock = Clock()
-                    clock.clock.sec, clock.clock.nanosec = divmod(int(log_time), 1_000_000_000)
-                    clock_pub.publish(clock)
-                    last_clock = log_time
-                publishers[conn.topic].publish(bytes(raw))
-                counts[conn.topic] += 1
-                n += 1
-                now = time.monotonic()
-                if now - last_report >= 1.0:
-                    last_report = now
-                    log(f"replay: {n}/{total} messages, bag time {(log_time - bag_start) * 1e-9:.1f} s, "
-                        f"wall {now - start_wall:.1f} s")
-            elapsed = time.monotonic() - start_wall
-            acked = True
-            for pub in publishers.values():
-                if pub.get_subscription_count() > 0:
-                    acked &= bool(pub.wait_for_all_acked(Duration(seconds=args.ack_timeout)))
-            if not acked:
-                log("replay: not every message was acknowledged within --ack-timeout")
+            elapsed = _play(args, reader, conns, node, publishers, counts, log)
+            acked = _acknowledged(publishers, args.ack_timeout, log)
     except KeyboardInterrupt:
         exit_code = 130
-        elapsed = float("nan")
-        acked = False
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-
     for topic, c in counts.items():
         print(f"{topic:32s} {c:8d}")
     print(json.dumps({"published": counts, "total": sum(counts.values()), "skipped_topics": skipped,
