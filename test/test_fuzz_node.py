@@ -123,11 +123,15 @@ def bad_clouds(t: float, x: float) -> list:
 
 
 # What the garbage above must be counted as (exactly: every refusal has a name).
-EXPECTED_DROPS = {"non_finite_odometry": 3, "degenerate_quaternion": 2, "implausible_odometry": 1,
+COMMON_DROPS = {"non_finite_odometry": 3, "degenerate_quaternion": 2,
                   "stamp_outlier": 8, "repeated_stamp": 1, "malformed_cloud": 3, "invalid_id": 3, "zero_range": 1,
                   "bearing_out_of_range": 1, "invalid_observation": 3,
                   "empty_cloud": 2,                 # the empty cloud, and the float-id one once its ids are out
                   "too_many_observations": 8000 - CAP}
+EXPECTED_DROPS = {
+    "odom": dict(COMMON_DROPS, implausible_odometry=1),            # the control topic is not read
+    "control": dict(COMMON_DROPS, non_finite_control=2, implausible_control=2, stamp_outlier=8 + 3),
+}
 
 
 def publish(ros, items, done) -> None:
@@ -153,8 +157,9 @@ def finite_map(msg) -> bool:
     return all(np.all(np.isfinite(np.asarray(c, dtype=float))) for c in columns.values())
 
 
-def test_fuzz_every_malformed_class_against_one_live_node(ros):
-    node = ros.start(motion_source="odom", publish_particles=False, **{
+@pytest.mark.parametrize("motion_source", ["odom", "control"])
+def test_fuzz_every_malformed_class_against_one_live_node(ros, motion_source):
+    node = ros.start(motion_source=motion_source, publish_particles=False, **{
         "filter.num_particles": 20, "filter.seed": 1, "association.max_observations_per_scan": CAP})
     k = drive(ros, node, 0, 20)
     before = node.slam.landmarks()
@@ -163,7 +168,8 @@ def test_fuzz_every_malformed_class_against_one_live_node(ros):
 
     t, x = T0 + DT * k, SPEED * DT * k
     motion = [("odom", odometry(t, x))] + bad_motion(t, x)
-    publish(ros, motion, lambda: node.slam.last_stamp == pytest.approx(t + 0.007))
+    publish(ros, motion, counted(node, degenerate_quaternion=2, **(
+        {"implausible_odometry": 1} if motion_source == "odom" else {"implausible_control": 2})))
     stamps = bad_stamps(x)
     publish(ros, [m for m in stamps if m[0] != "cloud"], counted(node, stamp_outlier=3))
     publish(ros, [m for m in stamps if m[0] == "cloud"], counted(node, stamp_outlier=7))
@@ -172,7 +178,7 @@ def test_fuzz_every_malformed_class_against_one_live_node(ros):
 
     drops = node.all_drops()
     merged = drops.pop("merged_new_landmark", 0)        # an association outcome of the flood, not garbage
-    assert drops == EXPECTED_DROPS, drops
+    assert drops == EXPECTED_DROPS[motion_source], drops
     assert merged < CAP
     # /diagnostics names every one of them.
     assert ros.spin_until(lambda: ros.drops() == node.all_drops(), 5.0), (ros.drops(), node.all_drops())
@@ -183,6 +189,8 @@ def test_fuzz_every_malformed_class_against_one_live_node(ros):
                                           for m in ros.received[topic]) for topic in ("pose", "landmarks")), 5.0)
     # Every output finite.
     assert ros.received["pose"] and all(map(finite_pose, ros.received["pose"]))
+    # Known gap (reported): an odometry pose at x = 1e300 is refused by the estimator but
+    # still published once as ~/pose (map->odom * odom->base): finite, absurd.
     assert all(map(finite_map, ros.received["landmarks"]))
     transforms = ros.received["map_to_odom"]
     assert transforms and all(map(finite_transform, transforms)) or node._tf.kind.startswith("tf2")
