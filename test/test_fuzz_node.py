@@ -201,3 +201,17 @@ def test_fuzz_every_malformed_class_against_one_live_node(ros, motion_source):
         assert table[i] == pytest.approx((lx, ly), abs=0.5)
         assert table[i] == pytest.approx(positions[i], abs=0.2)
     assert abs(node.slam.pose().mean[0] - SPEED * DT * (k - 1)) < 0.5
+
+
+def test_observation_clouds_in_unexpected_frames_are_counted(ros):
+    """issue 12 item 12: frame ids checked against the configured frames (warned, counted, used)."""
+    node = ros.start(motion_source="odom", sensor_frame="laser", publish_particles=False)
+    for k, frame in enumerate(("laser", "base_link", "map", "camera", "map")):
+        ros.odom_pub.publish(odometry(T0 + DT * k, SPEED * DT * k))
+        msg = cloud(T0 + DT * k, *scan(T0, SPEED * DT * k))
+        msg.header.frame_id = frame
+        ros.cloud_pub.publish(msg)
+    assert ros.spin_until(lambda: ros.diagnostics().get("unexpected_frame.map") == "2"
+                          and ros.diagnostics().get("unexpected_frame.camera") == "1", 5.0), ros.diagnostics()
+    assert not any(k.startswith("unexpected_frame.") and k[17:] in ("laser", "base_link") for k in ros.diagnostics())
+    assert node.slam.landmarks().n_obs.sum() == 10

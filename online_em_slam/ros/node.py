@@ -165,6 +165,7 @@ class OnlineEmSlamNode(Node):
         self._last_tf_ns = -1
         self._path = PathHistory(s.path_max_length, s.path_publish_max_poses)
         self._corrected: Counter = Counter()       # inputs used after a repair (normalised quaternions)
+        self._unexpected_frames: Counter = Counter()   # observation clouds by unexpected frame id
         self._watch = InputWatch()                 # silent input streams turn diagnostics WARN
         self._map_dirty = True
 
@@ -335,6 +336,7 @@ class OnlineEmSlamNode(Node):
                 self._refuse(OBSERVATIONS, stamp, "malformed_cloud", f"malformed observation cloud: {error}",
                              started)
                 return
+            self._check_frame(msg.header.frame_id)
             # An empty cloud goes through the merge too: it says "nothing seen up to here".
             self._input(OBSERVATIONS, stamp, observations, started)
             self._load.add(time.monotonic(), time.monotonic() - started)
@@ -356,6 +358,18 @@ class OnlineEmSlamNode(Node):
             self._slam.set_pose(pose, std)
             self.get_logger().info(f"pose set to ({pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.3f}) "
                                    f"from /initialpose; the map is kept")
+
+    def _check_frame(self, frame: str) -> None:
+        """Ranges and bearings are read as sensor-relative: a cloud in the map or odom frame (or
+        not the configured sensor_frame) is probably misread; used, but counted and warned about."""
+        s = self._settings
+        expected = {s.sensor_frame, s.base_frame} if s.sensor_frame else None
+        if (frame in expected) if expected else frame not in (s.map_frame, s.odom_frame):
+            return
+        self._unexpected_frames[frame] += 1
+        self.get_logger().warning(f"observation cloud in frame {frame!r}, expected "
+                                  f"{s.sensor_frame or 'a sensor frame'!r}: read as sensor-relative",
+                                  throttle_duration_sec=s.warn_throttle_period)
 
     def _refuse(self, kind: int, stamp: float, reason: str, what: str, started: float) -> None:
         """An input whose payload is unusable: counted, and its stamp still advances its stream."""
@@ -572,6 +586,8 @@ class OnlineEmSlamNode(Node):
             }
             values.update({f"dropped.{reason}": count for reason, count in sorted(drops.items())})
             values.update({f"corrected.{reason}": count for reason, count in sorted(self._corrected.items())})
+            values.update({f"unexpected_frame.{frame or '(empty)'}": count
+                           for frame, count in sorted(self._unexpected_frames.items())})
             level, message = DiagnosticStatus.OK, f"{len(landmarks)} landmarks"
             if self._paused:
                 level, message = DiagnosticStatus.WARN, "paused"

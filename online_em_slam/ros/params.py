@@ -173,6 +173,8 @@ NODE_SPECS = (
     ParamSpec("map_frame", "map", "Frame of the map and of the published pose."),
     ParamSpec("odom_frame", "odom", "Odometry frame; the node publishes map -> odom."),
     ParamSpec("base_frame", "base_link", "Robot base frame (child of the odometry messages)."),
+    ParamSpec("sensor_frame", "", "Frame of the observation clouds; clouds in another frame (other than "
+              "base_frame) are used but counted and warned about. Empty: any frame but map_frame and odom_frame."),
     ParamSpec("publish_tf", True, "Publish map -> odom (disable when another node owns it)."),
     ParamSpec("transform_publish_period", 0.05, "Republish map -> odom every this many seconds "
               "(0: only after updates).", 0.0, 10.0, read_only=True),
@@ -231,6 +233,7 @@ class NodeSettings:
     map_frame: str = "map"
     odom_frame: str = "odom"
     base_frame: str = "base_link"
+    sensor_frame: str = ""
     publish_tf: bool = True
     transform_publish_period: float = 0.05
     transform_timeout: float = 0.2
@@ -388,7 +391,8 @@ def build(values: dict[str, Any]) -> tuple[SlamConfig, NodeSettings]:
             _check_choice(spec.name, merged[spec.name], spec.choices)
     settings = NodeSettings(
         map_frame=str(merged["map_frame"]), odom_frame=str(merged["odom_frame"]),
-        base_frame=str(merged["base_frame"]), publish_tf=bool(merged["publish_tf"]),
+        base_frame=str(merged["base_frame"]), sensor_frame=str(merged["sensor_frame"]),
+        publish_tf=bool(merged["publish_tf"]),
         transform_publish_period=float(merged["transform_publish_period"]),
         transform_timeout=float(merged["transform_timeout"]),
         map_publish_period=float(merged["map_publish_period"]),
