@@ -130,7 +130,8 @@ COMMON_DROPS = {"non_finite_odometry": 3, "degenerate_quaternion": 2,
                   "too_many_observations": 8000 - CAP}
 EXPECTED_DROPS = {
     "odom": dict(COMMON_DROPS, implausible_odometry=1),            # the control topic is not read
-    "control": dict(COMMON_DROPS, non_finite_control=2, implausible_control=2, stamp_outlier=8 + 3),
+    "control": dict(COMMON_DROPS, non_finite_control=2, implausible_control=2, implausible_odometry=1,
+                    stamp_outlier=8 + 3),
 }
 
 
@@ -169,7 +170,8 @@ def test_fuzz_every_malformed_class_against_one_live_node(ros, motion_source):
     t, x = T0 + DT * k, SPEED * DT * k
     motion = [("odom", odometry(t, x))] + bad_motion(t, x)
     publish(ros, motion, counted(node, degenerate_quaternion=2, **(
-        {"implausible_odometry": 1} if motion_source == "odom" else {"implausible_control": 2})))
+        {"implausible_odometry": 1} if motion_source == "odom"
+        else {"implausible_control": 2, "implausible_odometry": 1})))
     stamps = bad_stamps(x)
     publish(ros, [m for m in stamps if m[0] != "cloud"], counted(node, stamp_outlier=3))
     publish(ros, [m for m in stamps if m[0] == "cloud"], counted(node, stamp_outlier=7))
@@ -189,8 +191,9 @@ def test_fuzz_every_malformed_class_against_one_live_node(ros, motion_source):
                                           for m in ros.received[topic]) for topic in ("pose", "landmarks")), 5.0)
     # Every output finite.
     assert ros.received["pose"] and all(map(finite_pose, ros.received["pose"]))
-    # Known gap (reported): an odometry pose at x = 1e300 is refused by the estimator but
-    # still published once as ~/pose (map->odom * odom->base): finite, absurd.
+    # An odometry pose at x = 1e300 is refused by the node itself (never published as ~/pose).
+    assert all(np.max(np.abs([m.pose.pose.position.x, m.pose.pose.position.y])) < 1e6
+               for m in ros.received["pose"])
     assert all(map(finite_map, ros.received["landmarks"]))
     transforms = ros.received["map_to_odom"]
     assert transforms and all(map(finite_transform, transforms)) or node._tf.kind.startswith("tf2")

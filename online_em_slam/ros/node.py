@@ -58,6 +58,9 @@ from ..pipeline import CONTROL, KIND_NAME, OBSERVATIONS, ODOMETRY, Fed, Feeder, 
 from ..core.mapfile import confined_path
 from . import conversions as conv
 from .initial_pose import pose_and_std
+
+# Odometry positions beyond this (m) are absurd (the map's coordinate range, as initial_pose.*).
+ODOMETRY_POSITION_LIMIT = 1e7
 from .input_watch import InputWatch
 from .path_history import PathHistory
 from .params import ParameterError, build, current_values, declare_parameters
@@ -288,6 +291,11 @@ class OnlineEmSlamNode(Node):
                 return
             if not np.all(np.isfinite(pose)) or not np.isfinite([q.x, q.y, q.z, q.w]).all():
                 self._refuse(ODOMETRY, stamp, "non_finite_odometry", "odometry with non-finite pose", started)
+                return
+            if np.max(np.abs(pose[:2])) > ODOMETRY_POSITION_LIMIT:
+                # Finite but absurd: it would be published as ~/pose and spoil map -> odom.
+                self._refuse(ODOMETRY, stamp, "implausible_odometry",
+                             f"odometry at ({p.x:.3g}, {p.y:.3g}) m, beyond +-{ODOMETRY_POSITION_LIMIT:.0e} m", started)
                 return
             if quaternion_problem:                   # used after normalisation: counted, not dropped
                 self._corrected[quaternion_problem] += 1
@@ -584,6 +592,9 @@ class OnlineEmSlamNode(Node):
                 "last_stamp": self._slam.last_stamp if self._slam.last_stamp is not None else -1.0,
                 "dropped_total": total,
             }
+            learned = self._slam.learned_noise()              # noise learned online (noise_learning.py)
+            if learned["enabled"]:
+                values.update({f"noise_learned.{k}": v for k, v in learned.items() if k not in ("enabled", "learning")})
             values.update({f"dropped.{reason}": count for reason, count in sorted(drops.items())})
             values.update({f"corrected.{reason}": count for reason, count in sorted(self._corrected.items())})
             values.update({f"unexpected_frame.{frame or '(empty)'}": count
