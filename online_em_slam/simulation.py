@@ -67,6 +67,8 @@ class ScenarioConfig:
     rho: float = 0.01
     outlier_probability: float = 0.0
     outlier_scale: float = 25.0
+    # sigma_r(range) = sigma_range + range_growth * range (the thesis' context-dependent noise)
+    range_growth: float = 0.0
     known_ids: bool = True
     seed: int = 0
     # laps > 0: drive the closed route exactly ``laps`` times (n_steps is then
@@ -238,8 +240,9 @@ def noise_config(cfg: ScenarioConfig) -> ObservationNoiseConfig:
         return ObservationNoiseConfig(model="mixture", sigma_range=cfg.sigma_range,
                                       sigma_bearing=cfg.sigma_bearing, rho=cfg.rho,
                                       mixture_weights=(1.0 - cfg.outlier_probability, cfg.outlier_probability),
-                                      mixture_scales=(1.0, cfg.outlier_scale))
-    return ObservationNoiseConfig(sigma_range=cfg.sigma_range, sigma_bearing=cfg.sigma_bearing, rho=cfg.rho)
+                                      mixture_scales=(1.0, cfg.outlier_scale), range_growth=cfg.range_growth)
+    return ObservationNoiseConfig(sigma_range=cfg.sigma_range, sigma_bearing=cfg.sigma_bearing, rho=cfg.rho,
+                                  range_growth=cfg.range_growth)
 
 
 def draw_noise(rng: np.random.Generator, cfg: ScenarioConfig, n_steps: int, n_landmarks: int
@@ -287,6 +290,9 @@ def simulate(cfg: ScenarioConfig | None = None) -> Scenario:
     # All (step, landmark) pairs at once: visible if within range and in front.
     clean = predict_observation(poses[1:, None, :], landmarks[None, :, :])        # (T, M, 2)
     visible = (clean[..., 0] <= cfg.max_range) & (np.abs(clean[..., 1]) <= math.pi / 2)
+    if cfg.range_growth > 0:       # (S3) with sigma_r(r): the range noise (and its covariance) scaled
+        W = W.copy()
+        W[..., 0] *= 1.0 + cfg.range_growth * clean[..., 0] / cfg.sigma_range
     measured = clean + W
     measured[..., 0] = np.abs(measured[..., 0])   # a range is never negative (only matters < 2 m)
     measured[..., 1] = wrap_angle(measured[..., 1])

@@ -298,13 +298,17 @@ class NoiseLearningConfig:
         default: without range-dependent noise it trades off against
         sigma_range) and ``motion_scale`` (one factor on the whole motion noise
         covariance).
-    step_size_exponent: gamma_n = n^-exponent (n counts observations, or filter
-        steps for the motion scale); below 1 the statistics computed under the
-        first, wrong noise values are forgotten.
+    step_size_exponent: gamma_n = n^-exponent (n counts observations) of the
+        observation-noise statistics; below 1 the statistics computed under
+        the first, wrong noise values are forgotten.
+    motion_step_size_exponent: the same for the motion scale's statistic (n
+        counts scans).  That statistic is a prediction error, valid whatever
+        scale the filter used, so there is nothing to forget: 1 averages all
+        of it (below 1 follows a motion noise that changes, e.g. with terrain).
     warmup_observations / warmup_steps: the learned observation noise is used
-        after this many observations, the motion scale after this many windows.
-    motion_window: filter steps whose motion residuals are compounded into one
-        statistic of the motion scale (one step's motion noise is small next to
+        after this many observations, the motion scale after this many scans.
+    motion_window: filter steps over which the pose is predicted open loop for
+        the motion scale's statistic (one step's motion noise is small next to
         the pose's uncertainty; L steps' is not).
     min_landmark_observations: observations of a landmark seen fewer times
         (this one included) are not used: its estimate is still the inverted
@@ -317,6 +321,7 @@ class NoiseLearningConfig:
     enabled: bool = False
     learn: tuple[str, ...] = ("range", "bearing", "correlation", "mixture", "motion_scale")
     step_size_exponent: float = 0.7
+    motion_step_size_exponent: float = 1.0
     warmup_observations: int = 200
     warmup_steps: int = 50
     motion_window: int = 10
@@ -335,6 +340,8 @@ class NoiseLearningConfig:
         for name in tuple(self.learn):
             _check_choice(f"{prefix}.learn", name, LEARNABLE_NOISE)
         _check_range(f"{prefix}.step_size_exponent", self.step_size_exponent, 0.5, 1.0, low_open=True)
+        _check_range(f"{prefix}.motion_step_size_exponent", self.motion_step_size_exponent, 0.5, 1.0,
+                     low_open=True)
         _check_range(f"{prefix}.warmup_observations", self.warmup_observations, 0, 10 ** 9)
         _check_range(f"{prefix}.warmup_steps", self.warmup_steps, 0, 10 ** 9)
         _check_range(f"{prefix}.motion_window", self.motion_window, 1, 1000)

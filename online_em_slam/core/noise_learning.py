@@ -22,18 +22,19 @@ the map term is taken out, or R would absorb the map's uncertainty.  The pose's
 uncertainty needs no term: averaging over the posterior particles is the
 E-step's expectation over the pose (mean outer product plus posterior spread).
 
-Motion statistic, per filter step, with d_i = xi_i - f(xi_{a_i}) the move of
-particle i from its ancestor's predicted pose and Sigma_i = s Q_i + J the
-transition covariance (J the jitter, not scaled): the score of s gives the
-fixed point
+Motion statistic (M), per scan at t: the pose predicted open loop over the
+last L filter steps from the posterior at t - L, x_pred = xbar_t + C with
+C = sum_k Phi(t, k) c_k the compounded motion residuals c_k = f(xbar_{k-1}) - xbar_k
+of section 6, gives the scan's prediction error nu = nubar_t - H_x C.  Its
+covariance is K + s G, G = H_x Q_L H_x^T the motion noise over the window at
+scale 1 and K = H_x Phi P_{t-L} Phi^T H_x^T + R + H Sigma H^T the rest, so
 
-    s = s_cur sum_t E[d^T Sigma^-1 (s_cur Q) Sigma^-1 d] / sum_t tr(Sigma^-1 s_cur Q)   (M)
+    s = sum_t (nu^T W nu - tr(W K)) / sum_t tr(W G)                           (M)
 
-which is the mean of d^T Q^-1 d / 3 when J is negligible and ignores the
-directions that only the jitter moves (a robot standing still says nothing
-about its motion noise).  The pair (xi_{a_i}, xi_i) under w_i is the joint
-law of two successive poses, the fixed-lag smoother of the motion residual
-c_t = f(xbar_{t-1}) - xbar_t of section 6 plus its posterior spread.
+(W = S^-1 G S^-1).  A prediction error is not pulled towards the scale the
+filter assumed (EM's posterior residuals are, and approach the truth by a
+fraction per pass only: one step's motion noise is small next to the pose's
+uncertainty, so most of its information is missing).
 """
 from __future__ import annotations
 
@@ -44,7 +45,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .angles import wrap_angle
-from .config import ObservationNoiseConfig, SlamConfig
+from .config import ObservationNoiseConfig, SensorConfig, SlamConfig
 from .em_step import FilterStepData
 from .motion import step_jitter
 from .observation import inv_det_2x2, noise_covariance, noise_loglik
@@ -56,6 +57,7 @@ from .particles import weighted_pose_mean
 MOTION_STDS = ("sigma_speed", "sigma_steering", "sigma_heading", "odometry_translation_std",
                "odometry_rotation_std", "odometry_translation_per_meter", "odometry_rotation_per_radian",
                "odometry_rotation_per_meter")
+OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture", "range_growth"})
 # Range bins of the sigma_r(r) = a + b r fit, over [0, min(max_range, RANGE_BIN_REACH)]
 # (farther observations share the last bin): the bins only weigh, their means are exact.
 RANGE_BINS, RANGE_BIN_REACH = 16, 100.0
@@ -183,40 +185,76 @@ class MotionStep:
     Q: np.ndarray
     J: np.ndarray
     P: np.ndarray
-    observed: bool
 
 
-def window_statistic(steps: list[MotionStep], scale: float) -> np.ndarray | None:
-    """(tr(A Q_L), C^T A C - tr(A (J_L + Phi P_0 Phi^T - P_L))) over the window: s = mean 2nd / mean 1st.
+def compound(steps: list[MotionStep]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """C = sum_k Phi(t, k) c_k, Q_L = sum_k Phi Q_k Phi^T, J_L (the jitter's), Phi(t, start) over ``steps``.
 
-    steps[0] only gives P_0, the posterior spread before the window.  C = sum_k
-    Phi(t, k) c_k is the window's compounded motion residual, Q_L = sum_k
-    Phi Q_k Phi^T its motion covariance at scale 1 and J_L the jitter's.  The
-    Kalman-filter identity (c_k = -K_k nu_k, innovations white) gives
-    E[C C^T] = s Q_L + J_L + Phi P_0 Phi^T - P_L, so for any weight A the
-    pair's ratio is unbiased for s.  A = V^-1 Q_L V^-1 with V = s Q_L + J_L +
-    Phi P_0 Phi^T, the residual's predicted covariance, is the score's weight
-    and gives the directions the pose's uncertainty dominates little weight.
-    The window's length is what makes the statistic informative: one step's
-    motion noise is small next to the pose's uncertainty, L steps' is not.
+    C is what the window's motion residuals add up to at its end: the open-loop
+    prediction of the pose at t from the posterior at the window's start, minus
+    the posterior mean at t; Q_L is its motion covariance at scale 1.
     """
     C, Q, J, Phi = np.zeros(3), np.zeros((3, 3)), np.zeros((3, 3)), np.eye(3)
-    for step in reversed(steps[1:]):
+    for step in reversed(steps):
         C += Phi @ step.c
         Q += Phi @ step.Q @ Phi.T
         J += Phi @ step.J @ Phi.T
         Phi = Phi @ step.F
-    prior = Phi @ steps[0].P @ Phi.T
+    return C, Q, J, Phi
+
+
+def prediction_statistic(steps: list[MotionStep], pose_jacobian: np.ndarray, innovation: np.ndarray,
+                         noise_cov: np.ndarray) -> np.ndarray | None:
+    """(tr(W G), nu^T W nu - tr(W K)) of the scan at the window's end: s = mean 2nd / mean 1st, (M).
+
+    nu = nubar - H_x C (2P) is the scan's innovation against the pose predicted
+    open loop over the window from the posterior at its start (steps[0] only
+    gives that posterior's spread P_0), ``innovation`` nubar the posterior mean
+    innovation at t and ``pose_jacobian`` H_x = dh/dX.  Its covariance is
+    S(s) = K + s G with G = H_x Q_L H_x^T, K = H_x (Phi P_0 Phi^T + J_L) H_x^T
+    + ``noise_cov`` (R and the map term), so E[nu^T W nu - tr(W K)] = s tr(W G)
+    for any W.  W = S(1)^-1 G S(1)^-1 (the score's weight at the configured
+    scale, so the learned value does not weigh its own evidence).  A
+    prediction error, unlike the posterior's residuals, is not pulled towards
+    the motion noise the filter assumed: EM's statistic would approach the
+    true scale by a fraction per pass only (one step's motion noise is small
+    next to the pose's uncertainty, so most of its information is missing).
+    """
+    C, Q, J, Phi = compound(steps[1:])
+    Hx = pose_jacobian.reshape(-1, 3)                                    # (2P, 3)
+    nu = innovation.reshape(-1) - Hx @ C
+    G = Hx @ Q @ Hx.T
+    K = Hx @ (Phi @ steps[0].P @ Phi.T + J) @ Hx.T + _block_diagonal(noise_cov)
     try:
-        if np.trace(np.linalg.solve(scale * Q + J, scale * Q)) < MIN_MOTION_DIMENSIONS:
+        if np.trace(np.linalg.solve(Q + J, Q)) < MIN_MOTION_DIMENSIONS:
             return None                   # standing still: the jitter is all the window moved
-        V_inv = np.linalg.inv(scale * Q + J + prior)
+        S_inv = np.linalg.inv(K + G)
     except np.linalg.LinAlgError:
         return None
-    A = V_inv @ Q @ V_inv
-    dims = float(np.trace(A @ Q))
-    spread = float(C @ A @ C - np.trace(A @ (J + prior - steps[-1].P)))
-    return np.array([dims, spread]) if np.isfinite(dims) and np.isfinite(spread) else None
+    W = S_inv @ G @ S_inv
+    sample = np.array([np.trace(W @ G), nu @ W @ nu - np.trace(W @ K)])
+    return sample if np.all(np.isfinite(sample)) and sample[0] > 0 else None
+
+
+def _block_diagonal(blocks: np.ndarray) -> np.ndarray:
+    """(P, 2, 2) -> (2P, 2P)."""
+    p = blocks.shape[0]
+    out = np.zeros((p, 2, p, 2))
+    out[np.arange(p), :, np.arange(p), :] = blocks
+    return out.reshape(2 * p, 2 * p)
+
+
+def pose_jacobian_from(H: np.ndarray, pose: np.ndarray, sensor: SensorConfig) -> np.ndarray:
+    """dh/dX (P, 2, 3) from dh/dtheta (P, 2, 2) at base pose ``pose`` (observation.pose_jacobian
+    without the landmarks): dh/dp = -dh/dtheta, the sensor lever arm, -1 on the bearing's yaw."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    lever = np.array([-s * sensor.offset_x - c * sensor.offset_y, c * sensor.offset_x - s * sensor.offset_y])
+    J = np.empty(H.shape[:-1] + (3,))
+    J[..., :2] = -H
+    J[..., 2] = -(H @ lever)
+    J[..., 1, 2] -= 1.0
+    return J
+
 
 class NoiseLearner:
     """Online EM statistics of the noise and the learned :class:`ObservationNoiseConfig` and motion scale.
@@ -233,7 +271,7 @@ class NoiseLearner:
             learn.discard("mixture")                     # nothing to learn in one Gaussian
         self.learn = learn
         self.observations = StochasticAverage(self.settings.step_size_exponent)
-        self.motion = StochasticAverage(self.settings.step_size_exponent)
+        self.motion = StochasticAverage(self.settings.motion_step_size_exponent)
         self.window: deque[MotionStep] = deque(maxlen=self.settings.motion_window + 1)
         self.range_bins = RangeBins(config.sensor.max_range, self.settings.step_size_exponent)
         self.estimate = config.noise                     # current M-step values
@@ -249,6 +287,12 @@ class NoiseLearner:
     @property
     def motion_scale_warm(self) -> bool:
         return self.motion.count >= self.settings.warmup_steps and self.motion.value is not None
+
+    @property
+    def _observation_noise_settled(self) -> bool:
+        """K in (M) holds R: with R still being learned, a wrong early R would stay in the
+        motion statistic's average for good, so (M) waits for R's warm-up."""
+        return self.observation_noise_warm or not (self.learn & OBSERVATION_QUANTITIES)
 
     def noise_config(self) -> ObservationNoiseConfig:
         """The observation noise for R, the likelihood and the gates."""
@@ -266,8 +310,8 @@ class NoiseLearner:
         included); ``map_cov`` (P, 2, 2): their covariances before this step.
         """
         if "motion_scale" in self.learn:
-            self._update_motion(data)                    # every step: silence is part of the motion
-        if self.learn & {"range", "bearing", "correlation", "mixture", "range_growth"} and data.rows.size:
+            self._update_motion(data, n_obs, map_cov)    # every step: silence is part of the motion
+        if self.learn & OBSERVATION_QUANTITIES and data.rows.size:
             statistics = self._observation_statistics(data, n_obs, map_cov)
             if statistics is not None:
                 sample, ranges, squared = statistics
@@ -308,8 +352,8 @@ class NoiseLearner:
         expected = noise_covariance(self._in_use, data.y[:, 0])
         return np.all(np.isclose(data.R, expected, rtol=1e-9, atol=1e-15), axis=(-1, -2))
 
-    def _update_motion(self, data: FilterStepData) -> None:
-        """Push the step into the window; blend (M) of the last ``motion_window`` steps."""
+    def _update_motion(self, data: FilterStepData, n_obs: np.ndarray, map_cov: np.ndarray) -> None:
+        """Push the step into the window; at a scan of known landmarks, blend (M) of the window."""
         scale = self.motion_scale()
         jitter = step_jitter(self.config.motion)
         pose = weighted_pose_mean(data.particles, data.weights)
@@ -317,21 +361,37 @@ class NoiseLearner:
         dev[:, 2] = wrap_angle(dev[:, 2])
         self.window.append(MotionStep(c=motion_residual(data.motion_mean, pose), F=data.motion_jacobian.copy(),
                                       Q=(data.motion_cov - jitter) / scale, J=jitter,
-                                      P=np.einsum("n,ni,nj->ij", data.weights, dev, dev),
-                                      observed=bool(data.rows.size)))
-        if len(self.window) < self.window.maxlen or not any(step.observed for step in self.window):
+                                      P=np.einsum("n,ni,nj->ij", data.weights, dev, dev)))
+        use = (np.asarray(n_obs) >= self.settings.min_landmark_observations) & self._configured_R(data)
+        if len(self.window) < self.window.maxlen or not use.any() or not self._observation_noise_settled:
             return
-        sample = window_statistic(list(self.window), scale)
-        if sample is not None:
-            self.motion.blend(sample)
-            low, high = self.settings.motion_scale_limits
-            self.scale_estimate = float(np.clip(self.motion.value[1] / self.motion.value[0], low, high))
-            if self.motion_scale_warm:
-                # Move towards the estimate by at most MAX_SCALE_RATE (log) per step: a window's
-                # statistic assumes one scale throughout, and a jump would make the pose spreads
-                # at its two ends disagree (a bias that feeds itself).
-                ratio = np.clip(self.scale_estimate / self.scale_in_use, np.exp(-MAX_SCALE_RATE), np.exp(MAX_SCALE_RATE))
-                self.scale_in_use = float(self.scale_in_use * ratio)
+        sample = prediction_statistic(list(self.window), *self._scan_terms(data, use, map_cov[use], pose))
+        if sample is None:
+            return
+        self.motion.blend(sample)
+        low, high = self.settings.motion_scale_limits
+        self.scale_estimate = float(np.clip(self.motion.value[1] / self.motion.value[0], low, high))
+        if self.motion_scale_warm:
+            # Move towards the estimate by at most MAX_SCALE_RATE (log) per step: the pose
+            # spreads in (M) come from the filter under the scale in use; no jumps.
+            ratio = np.clip(self.scale_estimate / self.scale_in_use, np.exp(-MAX_SCALE_RATE), np.exp(MAX_SCALE_RATE))
+            self.scale_in_use = float(self.scale_in_use * ratio)
+
+    def _scan_terms(self, data: FilterStepData, use: np.ndarray, map_cov: np.ndarray, pose: np.ndarray):
+        """(H_x (P, 2, 3), posterior mean innovation (P, 2), noise covariance (P, 2, 2)) of the scan.
+
+        The noise is the learned R (an outlier's divided by its responsibility-weighted
+        precision factor, so it weighs as in the likelihood) plus the map term H Sigma H^T.
+        """
+        w, noise = data.weights, self.estimate
+        nu = np.einsum("n,npi->pi", w, data.nu[:, use])
+        H = np.einsum("n,npij->pij", w, data.H[:, use])
+        cov = noise_covariance(noise, data.y[use, 0])
+        map_term = H @ map_cov @ np.swapaxes(H, -1, -2)
+        _, resp = noise_loglik(noise, nu, cov + map_term)
+        scales = np.asarray(noise.mixture_scales if noise.model == "mixture" else (1.0,), dtype=float)
+        cov = cov / (resp @ (1.0 / scales))[:, None, None] + map_term
+        return pose_jacobian_from(H, pose, self.config.sensor), nu, cov
 
     # ------------------------------------------------------------ M-step
     def _observation_m_step(self, stats: np.ndarray) -> ObservationNoiseConfig:
@@ -376,7 +436,7 @@ class NoiseLearner:
         noise = self.estimate
         return {"enabled": bool(self.learn), "learning": sorted(self.learn),
                 "observations": int(self.observations.count), "motion_steps": int(self.motion.count),
-                "observation_noise_in_use": self.observation_noise_warm and bool(self.learn - {"motion_scale"}),
+                "observation_noise_in_use": self.observation_noise_warm and bool(self.learn & OBSERVATION_QUANTITIES),
                 "motion_scale_in_use": "motion_scale" in self.learn and self.motion_scale_warm,
                 "sigma_range": noise.sigma_range, "sigma_bearing": noise.sigma_bearing, "rho": noise.rho,
                 "range_growth": noise.range_growth, "model": noise.model,

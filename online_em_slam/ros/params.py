@@ -139,10 +139,15 @@ _CORE = {
                              "enabled false.", None),
     "noise_learning.step_size_exponent": ("Step size gamma_n = n^-exponent of the noise statistics, in "
                                           "(0.5, 1].", (0.5, 1.0)),
+    "noise_learning.motion_step_size_exponent": ("Step size exponent of the motion scale's statistic, in "
+                                                 "(0.5, 1]; 1 averages it all (it is valid under any scale).",
+                                                 (0.5, 1.0)),
     "noise_learning.warmup_observations": ("Observations before the learned observation noise is used.",
                                            (0, 1000000000)),
-    "noise_learning.warmup_steps": ("Motion windows before the learned motion scale is used.", (0, 1000000000)),
-    "noise_learning.motion_window": ("Filter steps compounded into one motion-scale statistic.", (1, 1000)),
+    "noise_learning.warmup_steps": ("Scans (motion statistics) before the learned motion scale is used.",
+                                    (0, 1000000000)),
+    "noise_learning.motion_window": ("Filter steps over which the pose is predicted open loop for the motion "
+                                     "scale's statistic.", (1, 1000)),
     "noise_learning.min_landmark_observations": ("Observations of landmarks seen fewer times (this one "
                                                  "included) do not inform R.", (1, 1000000)),
     "noise_learning.sigma_range_limits": ("Floor and ceiling of the learned sigma_range (m), 0 < floor <= "
