@@ -326,8 +326,8 @@ class NoiseLearningConfig:
     warmup_steps: int = 50
     motion_window: int = 10
     min_landmark_observations: int = 5
-    sigma_range_limits: tuple[float, float] = (0.001, 10.0)
-    sigma_bearing_limits: tuple[float, float] = (0.0001, 0.5)
+    sigma_range_limits: tuple[float, float] = (0.01, 10.0)
+    sigma_bearing_limits: tuple[float, float] = (0.001, 0.5)
     range_growth_limits: tuple[float, float] = (0.0, 0.5)
     correlation_limit: float = 0.9
     mixture_weight_limits: tuple[float, float] = (0.001, 0.5)

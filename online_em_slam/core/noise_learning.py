@@ -13,21 +13,22 @@ held between a floor and a ceiling.  The estimator uses them after a warm-up.
 Observation statistics, per associated observation p with innovations
 nu_ip = y_p - h(xi_i, thetabar_k) under the posterior particles (weights w_i):
 
-    E_p   = sum_i w_i (sum_c r_ipc / s_c) (nu_ip nu_ip^T - H_ip Sigma_k H_ip^T)    (E)
+    E_p   = sum_i w_i (sum_c r_ipc / s_c) (nu_ip nu_ip^T - R / (n_k - 1))          (E)
 
-r_ipc the responsibility of mixture component c (scale s_c), Sigma_k the
-landmark's covariance before this observation.  The innovation is predictive
-(thetabar_k has not seen y_p yet), so its second moment is R + H Sigma_k H^T:
-the map term is taken out, or R would absorb the map's uncertainty.  The pose's
-uncertainty needs no term: averaging over the posterior particles is the
-E-step's expectation over the pose (mean outer product plus posterior spread).
+r_ipc the responsibility of mixture component c (scale s_c), n_k the landmark's
+observation count.  The innovation is predictive (thetabar_k has not seen y_p
+yet), so its second moment is R plus the map's uncertainty seen through h,
+about R / (n_k - 1) for an estimate that averages n_k - 1 observations: it is
+taken out, or R would absorb the map's uncertainty (:func:`map_uncertainty`).
+The pose's uncertainty needs no term: averaging over the posterior particles
+is the E-step's expectation over the pose (mean outer product plus spread).
 
 Motion statistic (M), per scan at t: the pose predicted open loop over the
 last L filter steps from the posterior at t - L, x_pred = xbar_t + C with
 C = sum_k Phi(t, k) c_k the compounded motion residuals c_k = f(xbar_{k-1}) - xbar_k
 of section 6, gives the scan's prediction error nu = nubar_t - H_x C.  Its
 covariance is K + s G, G = H_x Q_L H_x^T the motion noise over the window at
-scale 1 and K = H_x Phi P_{t-L} Phi^T H_x^T + R + H Sigma H^T the rest, so
+scale 1 and K = H_x Phi P_{t-L} Phi^T H_x^T + R (1 + 1/(n_k - 1)) the rest, so
 
     s = sum_t (nu^T W nu - tr(W K)) / sum_t tr(W G)                           (M)
 
@@ -175,6 +176,17 @@ def _gauss_newton_step(means: np.ndarray, weights: np.ndarray, params: np.ndarra
     return step
 
 
+def map_uncertainty(R: np.ndarray, n_obs: np.ndarray) -> np.ndarray:
+    """H Sigma_k H^T ~ R / (n_k - 1) (P, 2, 2): the landmark's estimate averages its earlier
+    observations, seen through h.
+
+    Taken from the learned R rather than from the M-step's Sigma_k, which is
+    built with the R in use: while that is still the wrong starting value
+    (10 times too large, say), its map term would swamp the residuals.
+    """
+    return R / np.maximum(np.asarray(n_obs, dtype=float) - 1.0, 1.0)[:, None, None]
+
+
 @dataclass
 class MotionStep:
     """One filter step of the motion-scale window: residual c_t = f(xbar_{t-1}) - xbar_t (3,),
@@ -290,9 +302,12 @@ class NoiseLearner:
 
     @property
     def _observation_noise_settled(self) -> bool:
-        """K in (M) holds R: with R still being learned, a wrong early R would stay in the
-        motion statistic's average for good, so (M) waits for R's warm-up."""
-        return self.observation_noise_warm or not (self.learn & OBSERVATION_QUANTITIES)
+        """(M) holds R in K and the filter's pose spread P_{t-L}, which follows the R in use: it
+        waits until the learned R has been in use for a warm-up (twice the warm-up), or a
+        wrong starting R (whose wide or narrow posteriors the spreads still show) would
+        stay in the motion statistic's average."""
+        settled = self.observations.count >= 2 * self.settings.warmup_observations
+        return settled or not (self.learn & OBSERVATION_QUANTITIES)
 
     def noise_config(self) -> ObservationNoiseConfig:
         """The observation noise for R, the likelihood and the gates."""
@@ -303,16 +318,16 @@ class NoiseLearner:
         return self.scale_in_use
 
     # ------------------------------------------------------------ E-step
-    def update(self, data: FilterStepData, n_obs: np.ndarray, map_cov: np.ndarray) -> None:
+    def update(self, data: FilterStepData, n_obs: np.ndarray) -> None:
         """Blend in one filter step's statistics and redo the M-step of the noise.
 
         ``n_obs`` (P,): observation counts of the observed landmarks (this one
-        included); ``map_cov`` (P, 2, 2): their covariances before this step.
+        included).
         """
         if "motion_scale" in self.learn:
-            self._update_motion(data, n_obs, map_cov)    # every step: silence is part of the motion
+            self._update_motion(data, n_obs)             # every step: silence is part of the motion
         if self.learn & OBSERVATION_QUANTITIES and data.rows.size:
-            statistics = self._observation_statistics(data, n_obs, map_cov)
+            statistics = self._observation_statistics(data, n_obs)
             if statistics is not None:
                 sample, ranges, squared = statistics
                 self.observations.blend(sample, ranges.size)
@@ -320,7 +335,7 @@ class NoiseLearner:
                 self.estimate = self._observation_m_step(self.observations.value)
                 self._in_use = self.estimate if self.observation_noise_warm else self.config.noise
 
-    def _observation_statistics(self, data: FilterStepData, n_obs: np.ndarray, map_cov: np.ndarray):
+    def _observation_statistics(self, data: FilterStepData, n_obs: np.ndarray):
         """(the step's mean of [E_bb, rho term, responsibilities, r_c q], ranges, E_rr), from (E)."""
         use = (np.asarray(n_obs) >= self.settings.min_landmark_observations) & self._configured_R(data)
         if not use.any():
@@ -330,8 +345,8 @@ class NoiseLearner:
         noise = self.estimate
         ranges = data.y[use, 0]
         nu, H, R, w = data.nu[:, use], data.H[:, use], noise_covariance(noise, ranges), data.weights
-        map_term = H @ map_cov[use][None] @ np.swapaxes(H, -1, -2)                    # (N, P, 2, 2)
-        _, resp = noise_loglik(noise, nu, R[None] + map_term)                         # (N, P, C)
+        map_term = map_uncertainty(R, np.asarray(n_obs)[use])                          # (P, 2, 2)
+        _, resp = noise_loglik(noise, nu, np.broadcast_to(R + map_term, H.shape))     # (N, P, C)
         scales = np.asarray(noise.mixture_scales if noise.model == "mixture" else (1.0,), dtype=float)
         outer = nu[..., :, None] * nu[..., None, :] - map_term
         E = np.einsum("n,np,npij->pij", w, resp @ (1.0 / scales), outer)              # (E), (P, 2, 2)
@@ -352,7 +367,7 @@ class NoiseLearner:
         expected = noise_covariance(self._in_use, data.y[:, 0])
         return np.all(np.isclose(data.R, expected, rtol=1e-9, atol=1e-15), axis=(-1, -2))
 
-    def _update_motion(self, data: FilterStepData, n_obs: np.ndarray, map_cov: np.ndarray) -> None:
+    def _update_motion(self, data: FilterStepData, n_obs: np.ndarray) -> None:
         """Push the step into the window; at a scan of known landmarks, blend (M) of the window."""
         scale = self.motion_scale()
         jitter = step_jitter(self.config.motion)
@@ -365,7 +380,7 @@ class NoiseLearner:
         use = (np.asarray(n_obs) >= self.settings.min_landmark_observations) & self._configured_R(data)
         if len(self.window) < self.window.maxlen or not use.any() or not self._observation_noise_settled:
             return
-        sample = prediction_statistic(list(self.window), *self._scan_terms(data, use, map_cov[use], pose))
+        sample = prediction_statistic(list(self.window), *self._scan_terms(data, use, np.asarray(n_obs)[use], pose))
         if sample is None:
             return
         self.motion.blend(sample)
@@ -377,7 +392,7 @@ class NoiseLearner:
             ratio = np.clip(self.scale_estimate / self.scale_in_use, np.exp(-MAX_SCALE_RATE), np.exp(MAX_SCALE_RATE))
             self.scale_in_use = float(self.scale_in_use * ratio)
 
-    def _scan_terms(self, data: FilterStepData, use: np.ndarray, map_cov: np.ndarray, pose: np.ndarray):
+    def _scan_terms(self, data: FilterStepData, use: np.ndarray, n_obs: np.ndarray, pose: np.ndarray):
         """(H_x (P, 2, 3), posterior mean innovation (P, 2), noise covariance (P, 2, 2)) of the scan.
 
         The noise is the learned R (an outlier's divided by its responsibility-weighted
@@ -387,7 +402,7 @@ class NoiseLearner:
         nu = np.einsum("n,npi->pi", w, data.nu[:, use])
         H = np.einsum("n,npij->pij", w, data.H[:, use])
         cov = noise_covariance(noise, data.y[use, 0])
-        map_term = H @ map_cov @ np.swapaxes(H, -1, -2)
+        map_term = map_uncertainty(cov, n_obs)
         _, resp = noise_loglik(noise, nu, cov + map_term)
         scales = np.asarray(noise.mixture_scales if noise.model == "mixture" else (1.0,), dtype=float)
         cov = cov / (resp @ (1.0 / scales))[:, None, None] + map_term

@@ -299,7 +299,7 @@ class OnlineEMSlam:
         log_w = log_prior + terms.log_likelihood
         weights = self._normalise(log_w)
         data = self._step_data(particles, weights, prior_weights, ancestors, trans_cov, rows, terms, sensor)
-        self._noise.update(data, self._map.n_obs[rows], self._m_step.covariances(rows))  # Sigma_k before y_t
+        self._noise.update(data, self._map.n_obs[rows])          # noise statistics (noise_learning.py)
         pose_correction = self._m_step.update(data, self._map)
         self._commit(particles, weights, pose_correction)
         report.n_associated = int(rows.size)

@@ -1,0 +1,302 @@
+"""Noise learned online (issue 9; core/noise_learning.py, docs/METHOD.md "Noise learned online").
+
+Seeded simulations of a few seconds each: data generated with known R, mixture,
+range-dependent range noise and motion noise; the estimator starts 3x too large
+or 3x too small (standard deviations, so 9x in variance) and must end near the
+truth.  The figures over more seeds are in docs/RESULTS.md.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from online_em_slam.core import OnlineEMSlam
+from online_em_slam.core.config import NoiseLearningConfig, SlamConfig, replace_section
+from online_em_slam.core.noise_learning import (RangeBins, StochasticAverage, batch_step_size, map_uncertainty,
+                                                range_noise_fit)
+from online_em_slam.core.types import Observations
+from online_em_slam.evaluation import landmark_pairs_by_id, map_error_split
+from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for
+
+# The truth of the simulated runs: noise that differs from every default.
+TRUTH = dict(n_landmarks=40, sigma_range=0.3, sigma_bearing=0.02, rho=0.0, sigma_speed=0.3, sigma_steering=0.03)
+PARTICLES = 50
+
+
+def run(scenario, config: SlamConfig) -> OnlineEMSlam:
+    slam = OnlineEMSlam(config, initial_pose=scenario.initial_pose)
+    for step in scenario.steps:
+        feed(slam, step)
+    return slam
+
+
+def map_errors(slam: OnlineEMSlam, scenario) -> tuple[float, float]:
+    """(landmark RMSE, shape error) by true id."""
+    landmarks = slam.landmarks()
+    rmse, shape, _ = map_error_split(*landmark_pairs_by_id(landmarks.ids, landmarks.positions, scenario.landmarks))
+    return float(rmse), float(shape)
+
+
+def started_wrong(config: SlamConfig, factor: float, **learning) -> SlamConfig:
+    """Observation and motion noise standard deviations x factor, the seed's mixture, learning on."""
+    noise = replace(config.noise, sigma_range=config.noise.sigma_range * factor,
+                    sigma_bearing=config.noise.sigma_bearing * factor, mixture_weights=(0.8, 0.2),
+                    mixture_scales=(1.0, 5.0))
+    motion = replace(config.motion, sigma_speed=config.motion.sigma_speed * factor,
+                     sigma_steering=config.motion.sigma_steering * factor)
+    return replace_section(config, noise=noise, motion=motion,
+                           noise_learning=NoiseLearningConfig(enabled=True, **learning))
+
+
+def true_motion_scale(slam: OnlineEMSlam, factor: float) -> float:
+    """The learned motion scale relative to the truth (the configured stds were x factor)."""
+    return slam.learned_noise()["motion_scale"] * factor ** 2
+
+
+# ----------------------------------------------------------------- building blocks
+def test_a_batch_of_updates_weighs_as_the_same_updates_one_by_one():
+    one_by_one, batch = StochasticAverage(0.7), StochasticAverage(0.7)
+    for value in (1.0, 5.0, 2.0):
+        one_by_one.blend(np.array([value]))
+    batch.blend(np.array([1.0]))
+    for _ in range(2):
+        one_by_one.blend(np.array([3.0]))
+    batch.blend(np.array([5.0]))
+    batch.blend(np.array([2.0]))
+    batch.blend(np.array([3.0]), 2)
+    assert batch.value == pytest.approx(one_by_one.value) and batch.count == one_by_one.count
+    assert batch_step_size(0, 1, 0.7) == 1.0                 # the first statistic replaces the start
+
+
+def test_range_noise_fit_recovers_a_and_b_from_squared_residuals():
+    rng = np.random.default_rng(0)
+    ranges = rng.uniform(1.0, 30.0, 20000)
+    squared = ((0.05 + 0.02 * ranges) * rng.standard_normal(ranges.size)) ** 2
+    bins = RangeBins(30.0, 1.0)
+    for chunk in np.array_split(np.arange(ranges.size), 4000):
+        bins.blend(ranges[chunk], squared[chunk])
+    a, b = range_noise_fit(*bins.table(), 0.5, 0.0, (True, True))
+    assert a == pytest.approx(0.05, rel=0.1) and b == pytest.approx(0.02, rel=0.05)
+    a_only, b_fixed = range_noise_fit(*bins.table(), 0.5, 0.02, (True, False))
+    assert b_fixed == 0.02 and a_only == pytest.approx(0.05, rel=0.1)
+
+
+def test_map_uncertainty_is_R_over_the_earlier_observations():
+    R = np.array([np.diag([0.04, 0.0004])] * 2)
+    assert map_uncertainty(R, np.array([5, 1])) == pytest.approx(np.array([R[0] / 4, R[1]]))
+
+
+def test_learning_off_leaves_the_configured_noise_in_use():
+    slam = OnlineEMSlam(SlamConfig())
+    learned = slam.learned_noise()
+    assert learned["enabled"] is False and learned["sigma_range"] == SlamConfig().noise.sigma_range
+    assert slam.learned_noise_parameters()["noise.sigma_range"] == SlamConfig().noise.sigma_range
+
+
+@pytest.mark.parametrize("section, message", [
+    ({"learn": ["range", "speed"]}, r"noise_learning\.learn = 'speed' is not one of"),
+    ({"sigma_range_limits": [0.0, 1.0]}, r"noise_learning\.sigma_range_limits = 0\.0 is outside"),
+    ({"motion_scale_limits": [2.0, 1.0]}, r"noise_learning\.motion_scale_limits = 1\.0 is outside"),
+    ({"mixture_weight_limits": [0.1]},
+     r"noise_learning\.mixture_weight_limits = \(0\.1,\) must be a list of exactly 2"),
+    ({"step_size_exponent": 0.5}, r"noise_learning\.step_size_exponent = 0\.5 is outside the allowed range \(0\.5"),
+])
+def test_bad_settings_are_refused_by_name(section, message):
+    with pytest.raises(ValueError, match=message):
+        SlamConfig.from_dict({"noise_learning": section})
+
+
+def test_parameters_take_a_list_of_names_or_one_name():
+    from online_em_slam.ros.params import build
+    config, _ = build({"noise_learning.enabled": True, "noise_learning.learn": ["range", "motion_scale"]})
+    assert config.noise_learning.learn == ("range", "motion_scale")
+    assert SlamConfig.from_dict({"noise_learning": {"learn": "range"}}).noise_learning.learn == ("range",)
+
+
+# ----------------------------------------------------------------- R, mixture and motion from 3x off
+@pytest.fixture(scope="module")
+def runs():
+    """Truth: R (0.3 m, 0.02 rad), 10 % outliers at 25 R, motion (0.3 m/s, 0.03 rad); the
+    estimator given the truth, and started 3x too large and 3x too small with learning on."""
+    scenario = simulate(ScenarioConfig(seed=2, outlier_probability=0.1, **TRUTH))
+    truth = slam_config_for(scenario, num_particles=PARTICLES)
+    return scenario, {factor: run(scenario, started_wrong(truth, factor) if factor else truth)
+                      for factor in (0, 3.0, 1 / 3)}
+
+
+@pytest.mark.parametrize("factor", [3.0, 1 / 3])
+def test_R_and_mixture_are_learned_from_3x_off(runs, factor):
+    _, slams = runs
+    learned = slams[factor].learned_noise()
+    assert learned["observation_noise_in_use"] and learned["motion_scale_in_use"]
+    assert learned["sigma_range"] == pytest.approx(TRUTH["sigma_range"], rel=0.10)
+    assert learned["sigma_bearing"] == pytest.approx(TRUTH["sigma_bearing"], rel=0.10)
+    assert abs(learned["rho"]) < 0.1 * TRUTH["sigma_range"] * TRUTH["sigma_bearing"]
+    assert learned["mixture_weights"][1] == pytest.approx(0.1, abs=0.05)
+    assert 10.0 < learned["mixture_scales"][1] < 50.0                    # truth 25
+
+
+@pytest.mark.parametrize("factor", [3.0, 1 / 3])
+def test_motion_scale_is_learned_from_9x_off_in_variance(runs, factor):
+    _, slams = runs
+    assert true_motion_scale(slams[factor], factor) == pytest.approx(1.0, rel=0.15)
+
+
+@pytest.mark.parametrize("factor", [3.0, 1 / 3])
+def test_the_map_shape_matches_the_run_given_the_true_noise(runs, factor):
+    """Shape error (RMSE after the best rigid fit) within 10 %.  The landmark RMSE itself is
+    dominated by the map's frame, which the first steps under the wrong start values set
+    (docs/RESULTS.md: the RMSE is not within 10 % from a 3x-too-large start)."""
+    scenario, slams = runs
+    _, shape_truth = map_errors(slams[0], scenario)
+    _, shape = map_errors(slams[factor], scenario)
+    assert shape <= 1.10 * shape_truth
+
+
+# ----------------------------------------------------------------- range-dependent noise
+def test_range_dependent_noise_a_and_b_are_learned():
+    """sigma_r = 0.05 + 0.02 r, landmarks 3 to 6 m off the route so near ranges pin a down."""
+    scenario = simulate(ScenarioConfig(seed=1, landmark_offset=(3.0, 6.0), **{**TRUTH, "sigma_range": 0.05},
+                                       range_growth=0.02))
+    config = slam_config_for(scenario, num_particles=PARTICLES)
+    config = replace_section(config, noise=replace(config.noise, sigma_range=0.3, range_growth=0.0),
+                             noise_learning=NoiseLearningConfig(enabled=True,
+                                                                learn=("range", "range_growth", "bearing")))
+    learned = run(scenario, config).learned_noise()
+    assert learned["sigma_range"] == pytest.approx(0.05, rel=0.20)
+    assert learned["range_growth"] == pytest.approx(0.02, rel=0.20)
+
+
+# ----------------------------------------------------------------- outliers
+def test_outliers_are_learned_as_a_mixture_and_do_not_spoil_the_map():
+    """5 % gross errors (25 R): the learned outlier weight is near 0.05 and the map as good
+    as on the same run without outliers (both learning from the seed's 0.8 / 0.2 mixture)."""
+    maps, learned = {}, {}
+    for p in (0.0, 0.05):
+        scenario = simulate(ScenarioConfig(seed=1, outlier_probability=p, **TRUTH))
+        config = slam_config_for(scenario, num_particles=PARTICLES)
+        config = replace_section(config, noise=replace(config.noise, model="mixture", mixture_weights=(0.8, 0.2),
+                                                       mixture_scales=(1.0, 5.0)),
+                                 noise_learning=NoiseLearningConfig(enabled=True))
+        slam = run(scenario, config)
+        maps[p], learned[p] = map_errors(slam, scenario)[0], slam.learned_noise()
+    assert learned[0.05]["mixture_weights"][1] == pytest.approx(0.05, abs=0.02)
+    assert maps[0.05] <= 1.10 * maps[0.0]
+    # Without outliers the second component does not vanish: it settles at the scale floor with
+    # a smaller R, the same Gaussian (effective variance sum_c w_c s_c sigma_r^2) split in two.
+    clean = learned[0.0]
+    effective = sum(w * s for w, s in zip(clean["mixture_weights"], clean["mixture_scales"]))
+    effective *= clean["sigma_range"] ** 2
+    assert effective == pytest.approx(TRUTH["sigma_range"] ** 2, rel=0.10)
+
+
+# ----------------------------------------------------------------- silence and floods
+def _short_run(config: SlamConfig, scans) -> OnlineEMSlam:
+    slam = OnlineEMSlam(config, initial_pose=(0.0, 0.0, 0.0))
+    for k, scan in enumerate(scans):
+        slam.add_control(0.2 * k, (2.0, 0.05))
+        if scan is not None:
+            slam.add_observations(0.2 * k + 0.1, scan)
+    return slam
+
+
+def _assert_sane(slam: OnlineEMSlam) -> None:
+    learned = slam.learned_noise()
+    limits = slam.config.noise_learning
+    for name, bounds in (("sigma_range", limits.sigma_range_limits), ("sigma_bearing", limits.sigma_bearing_limits),
+                         ("motion_scale", limits.motion_scale_limits)):
+        assert bounds[0] <= learned[name] <= bounds[1] and math.isfinite(learned[name]), name
+    assert abs(sum(learned["mixture_weights"]) - 1.0) < 1e-9 and min(learned["mixture_weights"]) > 0
+    assert np.all(np.isfinite(slam.pose().mean)) and np.all(np.linalg.eigvalsh(slam.pose().covariance) >= -1e-12)
+    SlamConfig(noise=slam._noise.noise_config()).validate()              # a valid R, never negative
+
+
+def _config() -> SlamConfig:
+    config = SlamConfig.from_dict({"filter": {"num_particles": 30}, "noise": {"model": "mixture"},
+                                   "noise_learning": {"enabled": True, "warmup_observations": 10,
+                                                      "warmup_steps": 5, "min_landmark_observations": 2}})
+    return config
+
+
+def test_a_sensor_that_goes_silent_leaves_the_learned_noise_finite_and_bounded():
+    landmarks = np.array([[10.0, 5.0], [15.0, -4.0], [25.0, 3.0]])
+    rng = np.random.default_rng(3)
+    scans = []
+    for k in range(300):
+        if 100 <= k < 250:
+            scans.append(None)                                             # silent for 30 s
+            continue
+        x = 0.4 * k
+        d = landmarks - np.array([x, 0.0])
+        ranges = np.hypot(d[:, 0], d[:, 1]) + 0.05 * rng.standard_normal(3)
+        bearings = np.arctan2(d[:, 1], d[:, 0]) + 0.01 * rng.standard_normal(3)
+        scans.append(Observations(ranges, bearings, np.arange(3)))
+    slam = _short_run(_config(), scans)
+    _assert_sane(slam)
+    assert slam.learned_noise()["observations"] > 0
+
+
+def test_a_flood_of_identical_or_wild_observations_leaves_the_learned_noise_finite_and_bounded():
+    rng = np.random.default_rng(4)
+    scans = []
+    for k in range(90):
+        if k % 3 == 0:          # one unknown landmark seen 300 times in one scan, all identical
+            scans.append(Observations(np.full(300, 8.0), np.full(300, 0.3), np.full(300, -1)))
+        else:                   # 100 wild observations of 100 landmarks
+            scans.append(Observations(rng.uniform(0.0, 30.0, 100), rng.uniform(-3.0, 3.0, 100), np.arange(100)))
+    slam = _short_run(_config(), scans)
+    _assert_sane(slam)
+
+
+def test_noise_yaml_is_a_parameter_file_with_the_values_in_use(tmp_path):
+    """What `online-em-slam run` writes as DIR/noise.yaml (report.write_noise_params) loads back."""
+    from online_em_slam.paramfile import config_from_params
+    from online_em_slam.report import write_noise_params
+    landmarks = np.array([[10.0, 5.0], [15.0, -4.0], [25.0, 3.0]])
+    rng = np.random.default_rng(5)
+    scans = []
+    for k in range(120):
+        d = landmarks - np.array([0.4 * k, 0.0])
+        scans.append(Observations(np.hypot(d[:, 0], d[:, 1]) + 0.05 * rng.standard_normal(3),
+                                  np.arctan2(d[:, 1], d[:, 0]) + 0.01 * rng.standard_normal(3), np.arange(3)))
+    slam = _short_run(_config(), scans)
+    learned = slam.learned_noise()
+    assert learned["observation_noise_in_use"] and learned["motion_scale_in_use"]
+    path = tmp_path / "noise.yaml"
+    write_noise_params(path, slam.learned_noise_parameters(), {"filter.num_particles": 30, "motion_source": "control"},
+                       learned)
+    config, _ = config_from_params(path)
+    assert config.noise.sigma_range == pytest.approx(learned["sigma_range"])
+    assert config.noise.mixture_weights == pytest.approx(learned["mixture_weights"])
+    root = math.sqrt(learned["motion_scale"])
+    assert config.motion.sigma_speed == pytest.approx(SlamConfig().motion.sigma_speed * root)
+    assert config.filter.num_particles == 30 and "# learned:" in path.read_text()
+
+# ----------------------------------------------------------------- the node
+def test_node_diagnostics_show_the_learned_values():
+    """/diagnostics carries noise_learned.* once learning is on (ros/node.py)."""
+    pytest.importorskip("rclpy")
+    from test_node import Harness, scenario
+    steps, _, _, initial, model = scenario(150)
+    ros = Harness()
+    try:
+        node = ros.start(motion_source="control", control_angular="steering",
+                         **{"filter.num_particles": 30, "initial_pose.x": float(initial[0]),
+                            "initial_pose.y": float(initial[1]), "initial_pose.yaw": float(initial[2]),
+                            "noise_learning.enabled": True, "noise_learning.warmup_observations": 20},
+                         **model)
+        for control_stamp, control, stamp, ranges, bearings, ids in steps:
+            ros.control(control_stamp, *control)
+            if len(ranges):
+                ros.cloud(stamp, ranges, bearings, ids)
+        assert ros.spin_until(lambda: node.slam.last_stamp == pytest.approx(steps[-1][2]), 20.0)
+        in_use = "noise_learned.observation_noise_in_use"
+        assert ros.spin_until(lambda: ros.diagnostics().get(in_use) == "True", 5.0)
+        diagnostics = ros.diagnostics()
+        assert int(diagnostics["noise_learned.observations"]) >= 20
+        assert 0.01 <= float(diagnostics["noise_learned.sigma_range"]) <= 10.0
+    finally:
+        ros.close()
