@@ -6,7 +6,7 @@ with bounded steering angle and rate), landmarks stand on both sides of the
 route, and a range-bearing sensor observes every landmark within ``max_range``
 in front of the vehicle at every step.
 
-Generative model (ALGORITHM.md section 1):
+Generative model (docs/METHOD.md, "Model"):
 
     X_k = f(X_{k-1}, u_k)                             true controls, no noise  (S1)
     u~_k = u_k + V_k,  V_k ~ N(0, diag(sigma_v^2, sigma_psi^2))  controls given to the filter (S2)

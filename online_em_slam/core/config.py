@@ -289,7 +289,7 @@ LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "range_growth",
 
 @dataclass
 class NoiseLearningConfig:
-    """Online EM estimation of the noise parameters (ALGORITHM.md section 7, core/noise_learning.py).
+    """Online EM estimation of the noise parameters (docs/METHOD.md "Noise learned online", core/noise_learning.py).
 
     learn: the quantities estimated, a subset of ``LEARNABLE_NOISE``: ``range``
         (sigma_range), ``bearing`` (sigma_bearing), ``correlation`` (rho),

@@ -1,4 +1,4 @@
-"""Noise parameters learned online by the same EM (ALGORITHM.md section 7, docs/METHOD.md
+"""Noise parameters learned online by the same EM (docs/METHOD.md
 "Noise learned online").
 
 The observation noise R (sigma_r, sigma_b, rho), the mixture weights and
