@@ -5,3 +5,17 @@ import os
 # concurrent test runs on this host cannot see each other's topics.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "OFF"
 os.environ.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def ros():
+    """A live node harness (test_node.Harness) in a fresh rclpy Context, shut down after the test."""
+    pytest.importorskip("rclpy")
+    from test_node import Harness
+    harness = Harness()
+    try:
+        yield harness
+    finally:
+        harness.close()

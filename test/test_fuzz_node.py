@@ -22,7 +22,7 @@ from std_msgs.msg import Header  # noqa: E402
 
 from online_em_slam.cloud import decode_message  # noqa: E402
 from online_em_slam.ros import conversions as conv  # noqa: E402
-from test_node import T0, finite_pose, landmark_table, ros  # noqa: E402,F401 (the fixture)
+from test_node import T0, finite_pose, landmark_table  # noqa: E402
 from test_reliability import make_cloud  # noqa: E402
 
 DT = 0.1

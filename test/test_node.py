@@ -143,15 +143,6 @@ class Harness:
         return {k[len("dropped."):]: int(v) for k, v in self.diagnostics().items() if k.startswith("dropped.")}
 
 
-@pytest.fixture
-def ros():
-    harness = Harness()
-    try:
-        yield harness
-    finally:
-        harness.close()
-
-
 def landmark_table(msg: PointCloud2) -> dict:
     columns = decode_message(msg, required=("x", "y", "id"))
     return {int(i): (float(x), float(y)) for i, x, y in zip(columns["id"], columns["x"], columns["y"])}

@@ -21,20 +21,11 @@ from builtin_interfaces.msg import Time as TimeMsg  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
-from test_node import T0, Harness  # noqa: E402
+from test_node import T0  # noqa: E402
 
 from online_em_slam.ros import conversions as conv  # noqa: E402
 
 PERIOD = 0.025          # odometry period (40 Hz, as the Car Park ute)
-
-
-@pytest.fixture
-def ros():
-    harness = Harness()
-    try:
-        yield harness
-    finally:
-        harness.close()
 
 
 def pose_times(ros):

@@ -13,18 +13,9 @@ rclpy = pytest.importorskip("rclpy")
 from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402
 from geometry_msgs.msg import PoseWithCovarianceStamped  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
-from test_node import T0, Harness  # noqa: E402
+from test_node import T0  # noqa: E402
 
 from online_em_slam.ros import conversions as conv  # noqa: E402
-
-
-@pytest.fixture
-def ros():
-    harness = Harness()
-    try:
-        yield harness
-    finally:
-        harness.close()
 
 
 def _drive(ros, steps, t0=0.0):

@@ -71,12 +71,10 @@ class BaselineFilter:
 
     def add_odometry(self, stamp: float, odom_pose) -> bool:
         """Apply the body-frame increment from the previous odometry pose (motion.model == "odometry")."""
-        previous_stamp = self._input.last_stamp
-        usable, increment = self._input.odometry(stamp, odom_pose)
+        usable, increment, dt = self._input.odometry_motion(stamp, odom_pose)
         if not usable:
             return False
         if increment is not None:
-            dt = 0.0 if previous_stamp is None else float(stamp) - previous_stamp
             self._predict(increment, max(dt, 1e-6))
         return self._advance(stamp)
 

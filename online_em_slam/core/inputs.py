@@ -96,6 +96,13 @@ class MotionInput:
         self.last_odometry, self._last_odometry_stamp = pose[:3].copy(), float(stamp)
         return True, increment if self.motion_model == "odometry" else None
 
+    def odometry_motion(self, stamp: float, odom_pose) -> tuple[bool, np.ndarray | None, float]:
+        """:meth:`odometry` plus the time since the last processed input, the step the
+        increment is spread over."""
+        previous = self.last_stamp
+        usable, increment = self.odometry(stamp, odom_pose)
+        return usable, increment, 0.0 if previous is None else float(stamp) - previous
+
     def _plausible_increment(self, increment: np.ndarray, stamp: float) -> bool:
         since = self._last_odometry_stamp
         dt = 0.0 if since is None else max(float(stamp) - since, 0.0)

@@ -231,12 +231,11 @@ class OnlineEMSlam:
 
     def add_odometry(self, stamp: float, odom_pose) -> bool:
         """Odometry-frame pose (x, y, yaw); the increment since the previous one drives motion."""
-        previous_stamp = self._input.last_stamp
-        usable, increment = self._input.odometry(stamp, odom_pose)
+        usable, increment, dt = self._input.odometry_motion(stamp, odom_pose)
         if not usable:
             return False
         if increment is not None:
-            self._predict(increment, max(float(stamp) - previous_stamp, 0.0))
+            self._predict(increment, max(dt, 0.0))
         self._advance_to(float(stamp))
         return True
 
