@@ -18,8 +18,9 @@ detection, the stamp-ordered merge of the streams (``input_delay``) and the
 feeder; so the node and ``online-em-slam run`` feed the estimator the identical
 sequence.  Every input that cannot be used is dropped and counted by reason
 (node counters merged with the path's and the core's), with a throttled
-warning.  When the node cannot keep up it sheds observation updates
-(``dropped.overload``), never motion.  ``~/pose`` follows the odometry: each
+warning.  When the node cannot keep up with best-effort inputs it sheds
+observation updates (``dropped.overload``), never motion; reliable inputs are
+never shed (the publisher waits).  ``~/pose`` follows the odometry: each
 odometry message gives the map-frame pose map->odom * odom->base at its stamp
 (what a TF user computes), so the pose keeps flowing while the merge waits for a
 slower stream; ``~/path`` is the estimator's pose after each observation message
@@ -437,7 +438,9 @@ class OnlineEmSlamNode(Node):
     def _feed(self, item) -> Fed:
         load = self._load.load(time.monotonic()) if item.kind == OBSERVATIONS else 0.0
         self.max_load = max(self.max_load, load)
-        shed = load > self._load.limit
+        # Shedding keeps best-effort queues from overflowing; with reliable (KEEP_ALL) inputs
+        # the publisher waits instead, so a lossless replay is never shed.
+        shed = load > self._load.limit and self._settings.input_reliability != "reliable"
         fed = self._feeder.apply(item, use_observations=not shed)
         if fed.trajectory_point is not None:
             t, x, y, yaw = fed.trajectory_point
