@@ -4,6 +4,8 @@ The batch step is built here without the module's Jacobians: finite differences
 of the nonlinear motion and observation models over every pose and landmark,
 whitened residuals, and scipy's least-squares solver for the normal equations.
 """
+import itertools
+
 import numpy as np
 import pytest
 from scipy.linalg import cholesky, lstsq
@@ -47,9 +49,8 @@ def _transition(pose, u):
     return mean[0], F[0], Q[0] + motion.step_jitter(MOTION)
 
 
-def _estimator(xbar, controls, observations, segment_length, n_landmarks, thetabar):
-    est = ObservedInformation(SENSOR, xbar[0], PRIOR_STD, first_estimates=False)
-    est.add_landmarks(n_landmarks)
+def _feed(est, xbar, controls, observations, segment_length, maps):
+    """Every step's factors; a segment closes every ``segment_length`` steps at the next map of ``maps``."""
     for t in range(1, len(xbar)):
         predicted, F, Q = _transition(xbar[t - 1], controls[t - 1])
         rows, y = observations[t - 1]
@@ -57,7 +58,14 @@ def _estimator(xbar, controls, observations, segment_length, n_landmarks, thetab
         est.add_step(StepFactors(xbar[t], F, motion_residual(predicted, xbar[t]),
                                  np.linalg.inv(Q), rows, y, precision))
         if t % segment_length == 0:
-            est.close_segment(thetabar)
+            est.close_segment(next(maps))
+    return est
+
+
+def _estimator(xbar, controls, observations, segment_length, n_landmarks, thetabar):
+    est = ObservedInformation(SENSOR, xbar[0], PRIOR_STD, first_estimates=False)
+    est.add_landmarks(n_landmarks)
+    _feed(est, xbar, controls, observations, segment_length, itertools.repeat(thetabar))
     est.close_segment(thetabar)
     return est
 
@@ -164,16 +172,11 @@ def _gauge_residual(first_estimates: bool, problem) -> float:
     est = ObservedInformation(SENSOR, xbar[0], np.full(3, 1e6), first_estimates=first_estimates)
     est.add_landmarks(5)
     rng = np.random.default_rng(7)
-    theta = thetabar.copy()
-    for t in range(1, len(xbar)):
-        predicted, F, Q = _transition(xbar[t - 1], controls[t - 1])
-        rows, y = observations[t - 1]
-        precision = np.broadcast_to(np.linalg.inv(R), (rows.size, 2, 2)).copy()
-        est.add_step(StepFactors(xbar[t], F, motion_residual(predicted, xbar[t]),
-                                 np.linalg.inv(Q), rows, y, precision))
-        if t % 10 == 0:
-            est.close_segment(theta)
-            theta = theta + rng.normal(0, 0.3, theta.shape)    # the map moves between segments
+    maps = [thetabar.copy()]
+    for _ in range((len(xbar) - 1) // 10):
+        maps.append(maps[-1] + rng.normal(0, 0.3, thetabar.shape))    # the map moves between segments
+    _feed(est, xbar, controls, observations, 10, iter(maps))
+    theta = maps[-1]
     points = est.landmark_first if first_estimates else theta
     key = est.key_first
     null = np.concatenate([[-key[1], key[0], 1.0], np.column_stack([-points[:, 1], points[:, 0]]).ravel()])

@@ -34,7 +34,6 @@ class ObservedInformationEM:
         # Complete-data information per landmark, sum of H^T Pbar H: its inverse is the
         # landmark's uncertainty relative to the poses it was seen from (the gate's term).
         self.information = np.zeros((0, 2, 2))
-        self.steps_in_segment = 0
         self.block_index = 1
         self.block_end = config.em.block_initial_length
         self.failed_solves = 0
@@ -50,11 +49,9 @@ class ObservedInformationEM:
     def update(self, data: FilterStepData, table: LandmarkTable) -> np.ndarray | None:
         """Add the step's factors; at a segment end integrate its poses out and maybe solve."""
         self.system.add_step(self._step_factors(data, table))
-        self.steps_in_segment += 1
         if not self._segment_ends(data.step):
             return None
         self.system.close_segment(table.theta)
-        self.steps_in_segment = 0
         if not self._solve_now(data.step):
             return None
         solution = self.system.solve()
@@ -84,7 +81,7 @@ class ObservedInformationEM:
     def _segment_ends(self, step: int) -> bool:
         if self.config.em.algorithm != "online" and step + 1 >= self.block_end:
             return True
-        return self.steps_in_segment >= self.config.em.segment_length
+        return len(self.system.segment) >= self.config.em.segment_length
 
     def _solve_now(self, step: int) -> bool:
         """Online EM solves at every segment end; Block Online EM only at block ends."""
@@ -101,7 +98,6 @@ class ObservedInformationEM:
         """The filter was re-initialised at ``pose``: fold the open segment in, then
         restart the key pose without a motion link (ObservedInformation.restart_key)."""
         self.system.close_segment(table.theta)
-        self.steps_in_segment = 0
         self.system.restart_key(pose, pose_std)
 
     # ------------------------------------------------------------ uncertainty
