@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .core import OnlineEMSlam, SlamConfig
-from .core.angles import wrap_angle
+from .core.models.angles import wrap_angle
 from .evaluation import landmark_pairs_by_id, map_error_split
 from .simulation import Scenario, ScenarioConfig, feed, simulate, slam_config_for
 

@@ -17,7 +17,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .core.angles import wrap_angle
+from .core.models.angles import wrap_angle
 from .core.types import Observations
 
 # sensor_msgs/PointField datatype constants.

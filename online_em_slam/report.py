@@ -84,14 +84,14 @@ def write_noise_params(path, learned_parameters: dict, file_values: dict, learne
               "# (learned ones once warmed up); pass it back with --params or to the node.\n"
               f"# learned: {json.dumps(shown)}\n")
     body = yaml.safe_dump({"/**": {"ros__parameters": values}}, sort_keys=False, default_flow_style=None, width=100)
-    from .core.mapfile import write_bytes_atomic  # noqa: PLC0415
+    from .core.mapping.mapfile import write_bytes_atomic  # noqa: PLC0415
     write_bytes_atomic(path, (header + body).encode())
 
 
 def json_dump(path, data) -> None:
     # Atomic and fsynced, through an unpredictable temporary name: a predictable
     # "metrics.json.tmp" could be a planted symlink that sends the write elsewhere.
-    from .core.mapfile import write_bytes_atomic  # noqa: PLC0415
+    from .core.mapping.mapfile import write_bytes_atomic  # noqa: PLC0415
     write_bytes_atomic(path, (json.dumps(data, indent=2, sort_keys=False) + "\n").encode())
 
 

@@ -31,10 +31,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .core.angles import wrap_angle
+from .core.models.angles import wrap_angle
 from .core.config import (AssociationConfig, FilterConfig, MotionConfig, ObservationNoiseConfig, SensorConfig,
                           SlamConfig)
-from .core.observation import noise_covariance, predict_observation
+from .core.models.observation import noise_covariance, predict_observation
 from .core.types import Observations
 
 # Closed route (m), a rounded irregular loop of about 330 m: at 3 m/s and

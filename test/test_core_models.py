@@ -4,10 +4,10 @@ import math
 import numpy as np
 import pytest
 
-from online_em_slam.core.angles import wrap_angle
+from online_em_slam.core.models.angles import wrap_angle
 from online_em_slam.core.config import MotionConfig, ObservationNoiseConfig, SensorConfig
-from online_em_slam.core import motion
-from online_em_slam.core.observation import (innovation, inverse_observation, landmark_jacobian,
+from online_em_slam.core.models import motion
+from online_em_slam.core.models.observation import (innovation, inverse_observation, landmark_jacobian,
                                              noise_covariance, noise_loglik, pose_jacobian,
                                              predict_observation, sensor_poses)
 
@@ -152,7 +152,7 @@ def test_noise_covariance_is_g_diag_q_g_transpose():
 
 
 def test_cofactor_inverse_matches_lapack():
-    from online_em_slam.core.particles import symmetric_inverse_3x3
+    from online_em_slam.core.filter.particles import symmetric_inverse_3x3
     rng = np.random.default_rng(4)
     A = rng.standard_normal((50, 3, 3))
     P = A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(3)

@@ -11,7 +11,7 @@ from online_em_slam.simulation import ScenarioConfig, feed, landmark_rmse, simul
 def dead_reckoning_map_rmse(scenario):
     """Landmark error of mapping with odometry alone (first sighting, no correction): the 'no SLAM' level."""
     config = slam_config_for(scenario)
-    from online_em_slam.core.motion import propagate
+    from online_em_slam.core.models.motion import propagate
     pose = scenario.initial_pose[None]
     first = {}
     for step in scenario.steps:

@@ -11,8 +11,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from online_em_slam.core import mapfile
-from online_em_slam.core.slam import OnlineEMSlam
+from online_em_slam.core.mapping import mapfile
+from online_em_slam.core.filter.slam import OnlineEMSlam
 from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for
 
 
@@ -275,7 +275,7 @@ def test_temporaries_of_a_killed_writer_are_removed_by_the_next_save(mapped, tmp
     good = path.read_bytes()
     script = (
         "import os, sys, numpy as np\n"
-        "from online_em_slam.core import mapfile\n"
+        "from online_em_slam.core.mapping import mapfile\n"
         "def stuck(handle):\n"
         "    handle.write(b'partial'); handle.flush(); print('writing', flush=True); sys.stdin.read()\n"
         f"mapfile.write_file_atomic({str(path)!r}, stuck)\n")

@@ -11,10 +11,10 @@ from scipy.optimize import least_squares
 from online_em_slam.baselines.gtsam_batch import dead_reckoning
 from online_em_slam.baselines.marginal_slam import MarginalSlam, RecursiveMLMapUpdate
 from online_em_slam.core.config import ObservationNoiseConfig, SensorConfig, SlamConfig
-from online_em_slam.core.em_complete import CompleteDataEM
-from online_em_slam.core.em_step import FilterStepData
-from online_em_slam.core.landmarks import LandmarkTable
-from online_em_slam.core.observation import (innovation, inv_det_2x2, landmark_jacobian, noise_covariance,
+from online_em_slam.core.em.complete import CompleteDataEM
+from online_em_slam.core.em.step import FilterStepData
+from online_em_slam.core.mapping.landmarks import LandmarkTable
+from online_em_slam.core.models.observation import (innovation, inv_det_2x2, landmark_jacobian, noise_covariance,
                                              predict_observation, sensor_poses)
 from online_em_slam.simulation import ScenarioConfig, feed, landmark_rmse, simulate, slam_config_for
 

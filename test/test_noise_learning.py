@@ -1,4 +1,4 @@
-"""Noise learned online (issue 9; core/noise_learning.py, docs/METHOD.md "Noise learned online").
+"""Noise learned online (issue 9; core/em/noise_learning.py, docs/METHOD.md "Noise learned online").
 
 Seeded simulations of a few seconds each: data generated with known R, mixture,
 range-dependent range noise and motion noise; the estimator starts 3x too large
@@ -15,7 +15,7 @@ import pytest
 
 from online_em_slam.core import OnlineEMSlam
 from online_em_slam.core.config import NoiseLearningConfig, SlamConfig, replace_section
-from online_em_slam.core.noise_learning import (RangeBins, StochasticAverage, batch_step_size, map_uncertainty,
+from online_em_slam.core.em.noise_learning import (RangeBins, StochasticAverage, batch_step_size, map_uncertainty,
                                                 range_noise_fit)
 from online_em_slam.core.types import Observations
 from online_em_slam.evaluation import landmark_pairs_by_id, map_error_split

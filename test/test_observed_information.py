@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scipy.linalg import cholesky, lstsq
 
-from online_em_slam.core import motion
-from online_em_slam.core.angles import wrap_angle
+from online_em_slam.core.models import motion
+from online_em_slam.core.models.angles import wrap_angle
 from online_em_slam.core.config import MotionConfig, SensorConfig
-from online_em_slam.core.observation import predict_observation, sensor_poses
-from online_em_slam.core.observed_information import (ObservedInformation, StepFactors,
+from online_em_slam.core.models.observation import predict_observation, sensor_poses
+from online_em_slam.core.em.observed_information import (ObservedInformation, StepFactors,
                                                        motion_residual)
 
 SENSOR = SensorConfig(offset_x=0.6, offset_y=-0.2, offset_yaw=0.05, max_range=40.0)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from online_em_slam.core.config import SlamConfig
-from online_em_slam.core.slam import OnlineEMSlam
+from online_em_slam.core.filter.slam import OnlineEMSlam
 from online_em_slam.core.types import Observations
 from online_em_slam.pipeline import (CONTROL, OBSERVATIONS, ODOMETRY, Feeder, Input, InputPath, LoadMonitor,
                                      Sequencer, StampGuard)

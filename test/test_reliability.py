@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from online_em_slam.core.config import AssociationConfig, FilterConfig, ObservationNoiseConfig, SlamConfig
-from online_em_slam.core.slam import OnlineEMSlam
+from online_em_slam.core.filter.slam import OnlineEMSlam
 from online_em_slam.ros.params import ParameterError, build
 
 

@@ -5,7 +5,7 @@ import time
 import numpy as np
 import pytest
 
-from online_em_slam.core.observation import innovation, noise_covariance, predict_observation
+from online_em_slam.core.models.observation import innovation, noise_covariance, predict_observation
 from online_em_slam.simulation import (ScenarioConfig, Scenario, feed, landmark_rmse, simulate,
                                            slam_config_for)
 

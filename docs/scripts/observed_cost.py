@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from online_em_slam.core.config import SensorConfig
-from online_em_slam.core.observed_information import ObservedInformation, StepFactors
+from online_em_slam.core.em.observed_information import ObservedInformation, StepFactors
 
 
 def _segment(rng, poses, m, observed):

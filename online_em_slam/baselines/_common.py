@@ -1,6 +1,6 @@
 """Input handling shared by the baseline estimators (EKF-SLAM, FastSLAM 2.0).
 
-Mirrors the input contract of :class:`online_em_slam.core.slam.OnlineEMSlam`
+Mirrors the input contract of :class:`online_em_slam.core.filter.slam.OnlineEMSlam`
 (docs/API.md): stamps in seconds, zero-order hold of controls, odometry poses
 turned into body-frame increments, bad inputs dropped and counted in
 ``drops`` instead of raising.  Subclasses implement the estimator itself:
@@ -15,11 +15,11 @@ from collections import Counter
 
 import numpy as np
 
-from ..core.angles import wrap_angle
+from ..core.models.angles import wrap_angle
 from ..core.config import SlamConfig
-from ..core.association import plan_associations as core_plan
-from ..core.inputs import MotionInput
-from ..core.observation import noise_covariance
+from ..core.filter.association import plan_associations as core_plan
+from ..core.filter.inputs import MotionInput
+from ..core.models.observation import noise_covariance
 from ..core.types import Observations, StepReport
 
 
@@ -205,7 +205,7 @@ class LandmarkBook:
 
 def plan_associations(observations: Observations, book: LandmarkBook, predicted_fn, R: np.ndarray,
                       gates, report: StepReport, drop) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
-    """The core's association plan (core/association.py) over the baseline's slots.
+    """The core's association plan (core/filter/association.py) over the baseline's slots.
 
     ``predicted_fn()`` returns (z_hat (K, 2), S0 (K, 2, 2)) for every slot; the
     innovation covariance of an unknown-id observation is S0 + R.  Returns

@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.angles import wrap_angle
-from ..core.association import Gates
-from ..core.motion import propagate, step_jitter
-from ..core.observation import (innovation, landmark_jacobian, pose_jacobian, predict_observation,
+from ..core.models.angles import wrap_angle
+from ..core.filter.association import Gates
+from ..core.models.motion import propagate, step_jitter
+from ..core.models.observation import (innovation, landmark_jacobian, pose_jacobian, predict_observation,
                                 sensor_poses, inverse_observation)
 from ..core.types import LandmarkMap, Observations, PoseEstimate, StepReport
 from ._common import BaselineFilter, LandmarkBook, inverse_observation_jacobians, plan_associations

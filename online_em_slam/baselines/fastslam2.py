@@ -18,18 +18,18 @@ Systematic resampling when ESS < resample_threshold * N.
 
 Unknown ids are associated with the particle-weighted moment-matched
 prediction (z_hat_k = sum_i w_i z_hat_ik, S_k = sum_i w_i (S_ik + d d^T) + R),
-so all methods share :func:`online_em_slam.core.association.associate`.
+so all methods share :func:`online_em_slam.core.filter.association.associate`.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..core.angles import wrap_angle
-from ..core.association import Gates
-from ..core.motion import propagate, step_jitter
-from ..core.observation import (inv_det_2x2, innovation, inverse_observation, landmark_jacobian,
+from ..core.models.angles import wrap_angle
+from ..core.filter.association import Gates
+from ..core.models.motion import propagate, step_jitter
+from ..core.models.observation import (inv_det_2x2, innovation, inverse_observation, landmark_jacobian,
                                 noise_loglik, pose_jacobian, predict_observation, sensor_poses)
-from ..core.particles import (effective_sample_size, normalize_log_weights, sample_gaussians,
+from ..core.filter.particles import (effective_sample_size, normalize_log_weights, sample_gaussians,
                               systematic_resample, weighted_pose_covariance, weighted_pose_mean)
 from ..core.types import LandmarkMap, Observations, PoseEstimate, StepReport
 from ._common import BaselineFilter, LandmarkBook, inverse_observation_jacobians, plan_associations

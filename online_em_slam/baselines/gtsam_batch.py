@@ -21,10 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.angles import wrap_angle
+from ..core.models.angles import wrap_angle
 from ..core.config import SlamConfig
-from ..core.motion import propagate, step_jitter
-from ..core.observation import inverse_observation, noise_covariance
+from ..core.models.motion import propagate, step_jitter
+from ..core.models.observation import inverse_observation, noise_covariance
 
 
 @dataclass

@@ -43,12 +43,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.config import SlamConfig
-from ..core.em_complete import _inverse_observation_spread
-from ..core.em_step import FilterStepData
-from ..core.landmarks import LandmarkTable
-from ..core.observation import inv_det_2x2
-from ..core.slam import OnlineEMSlam
-from ..core.statistics import (STAT_DIM, backward_kernel, differing_landmarks, forward_smooth,
+from ..core.em.complete import _inverse_observation_spread
+from ..core.em.step import FilterStepData
+from ..core.mapping.landmarks import LandmarkTable
+from ..core.models.observation import inv_det_2x2
+from ..core.filter.slam import OnlineEMSlam
+from ..core.em.statistics import (STAT_DIM, backward_kernel, differing_landmarks, forward_smooth,
                                observation_statistics, paris_indices, paris_smooth, unpack)
 
 

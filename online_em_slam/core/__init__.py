@@ -1,7 +1,7 @@
 """ROS-free estimation core: particle online EM SLAM and its building blocks."""
 from .config import (AssociationConfig, EMConfig, FilterConfig, MotionConfig,
                      ObservationNoiseConfig, SensorConfig, SlamConfig)
-from .slam import OnlineEMSlam
+from .filter.slam import OnlineEMSlam
 from .types import LandmarkMap, Observations, PoseEstimate, StepReport
 
 __all__ = ["AssociationConfig", "EMConfig", "FilterConfig", "MotionConfig", "ObservationNoiseConfig",

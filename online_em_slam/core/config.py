@@ -289,7 +289,7 @@ LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "range_growth",
 
 @dataclass
 class NoiseLearningConfig:
-    """Online EM estimation of the noise parameters (docs/METHOD.md "Noise learned online", core/noise_learning.py).
+    """Online EM estimation of the noise parameters (docs/METHOD.md "Noise learned online", core/em/noise_learning.py).
 
     learn: the quantities estimated, a subset of ``LEARNABLE_NOISE``: ``range``
         (sigma_range), ``bearing`` (sigma_bearing), ``correlation`` (rho),
@@ -362,7 +362,7 @@ class NoiseLearningConfig:
 
 @dataclass
 class SlamConfig:
-    """All settings of :class:`online_em_slam.core.slam.OnlineEMSlam`."""
+    """All settings of :class:`online_em_slam.core.filter.slam.OnlineEMSlam`."""
 
     motion: MotionConfig = field(default_factory=MotionConfig)
     sensor: SensorConfig = field(default_factory=SensorConfig)

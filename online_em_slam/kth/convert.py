@@ -31,7 +31,7 @@ topic                       type                            frame        content
 ==========================  ==============================  ===========  =====================
 
 Dead reckoning (/odom): the ACFR model of the rear-axle centre, Euler-integrated
-with the control of sample k held over [t_k, t_k+1] (as core.motion.acfr):
+with the control of sample k held over [t_k, t_k+1] (as core.models.motion.acfr):
 v_c = v_e / (1 - tan(alpha) H / L), phi' = v_c tan(alpha) / L, starting at the
 odom origin (0, 0, 0) at the first control sample.  Twist: linear.x = v_c,
 angular.z = phi'.  Covariances are left at 0 (not estimated).
@@ -68,7 +68,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cloud import OBSERVATION_FIELDS, build_message
-from ..core import motion
+from ..core.models import motion
 from ..core.config import MotionConfig
 from ..quaternion import yaw_to_xyzw
 from .beacons import extract_beacons, observation_columns
@@ -177,7 +177,7 @@ class Streams:
 def acfr_rates(speed, steering, vehicle: Vehicle = VEHICLE) -> tuple[np.ndarray, np.ndarray]:
     """Centre speed v_c = v_e / (1 - tan(alpha) H / L) and yaw rate v_c tan(alpha) / L.
 
-    The formula is the filter's own (core.motion.acfr): one step of dt = 1 s
+    The formula is the filter's own (core.models.motion.acfr): one step of dt = 1 s
     from heading 0 moves the pose by (v_c, 0, yaw rate), so the bag's dead
     reckoning and the filter cannot drift apart.
     """

@@ -17,7 +17,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from ..cloud import (LANDMARK_FIELDS, MAX_ID, OBSERVATION_FIELDS, CloudFormatError, build_message,
                      observations_from_message)
-from ..core.angles import wrap_angle
+from ..core.models.angles import wrap_angle
 from ..core.types import LandmarkMap, Observations, PoseEstimate
 from ..quaternion import (DEGENERATE_QUATERNION, QUATERNION_TOLERANCE, odometry_yaw,  # noqa: F401 (re-exported)
                           quaternion_to_yaw, yaw_to_xyzw)

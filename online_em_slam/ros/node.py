@@ -53,10 +53,10 @@ from std_msgs.msg import Header
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from ..core.angles import wrap_angle
-from ..core.slam import OnlineEMSlam
+from ..core.models.angles import wrap_angle
+from ..core.filter.slam import OnlineEMSlam
 from ..pipeline import CONTROL, KIND_NAME, OBSERVATIONS, ODOMETRY, Fed, Feeder, InputPath, LoadMonitor
-from ..core.mapfile import confined_path
+from ..core.mapping.mapfile import confined_path
 from . import conversions as conv
 from .initial_pose import pose_and_std
 
@@ -710,7 +710,7 @@ class OnlineEmSlamNode(Node):
                     os.mkdir(root)
                 os.makedirs(os.path.dirname(path), exist_ok=True)
                 path = self._map_path()
-                self._slam.save_map(path)    # validated, fsynced temporary file + rename (core/mapfile.py)
+                self._slam.save_map(path)    # validated, fsynced temporary file + rename (core/mapping/mapfile.py)
                 response.success = True
                 response.message = f"saved {len(self._slam.landmarks())} landmarks to {path}"
             except Exception as error:  # noqa: BLE001 - a failed save must never stop the node

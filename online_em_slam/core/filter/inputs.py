@@ -15,8 +15,8 @@ from collections import Counter
 
 import numpy as np
 
-from .config import MotionConfig
-from .motion import odometry_increment
+from ..config import MotionConfig
+from ..models.motion import odometry_increment
 
 # An odometry increment may exceed max_speed * dt by this much (m, rad) before it
 # is implausible: stamps jitter, and odometry sources integrate between messages.

@@ -45,13 +45,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .angles import wrap_angle
-from .config import ObservationNoiseConfig, SensorConfig, SlamConfig
-from .em_step import FilterStepData
-from .motion import step_jitter
-from .observation import inv_det_2x2, noise_covariance, noise_loglik
+from ..models.angles import wrap_angle
+from ..config import ObservationNoiseConfig, SensorConfig, SlamConfig
+from .step import FilterStepData
+from ..models.motion import step_jitter
+from ..models.observation import inv_det_2x2, noise_covariance, noise_loglik
 from .observed_information import motion_residual
-from .particles import weighted_pose_mean
+from ..filter.particles import weighted_pose_mean
 
 # Motion noise standard deviations: all of them scale by sqrt(s) when the
 # transition covariance scales by s (every model's covariance is a sum of their squares).

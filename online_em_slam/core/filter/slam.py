@@ -2,12 +2,12 @@
 
 The pose is the hidden state of an HMM and is tracked by a particle filter;
 the landmark map theta is a parameter, updated by an M-step piece
-(em_complete.py: the seed's complete-data M-step; em_observed.py: the Newton
+(em/complete.py: the seed's complete-data M-step; em/observed.py: the Newton
 step with the observed information).  One *filter step* happens per
 observation scan (and, without observations, every
 ``motion.max_prediction_interval`` seconds); the controls or odometry
 increments in between are compounded into the Gaussian transition (T) of
-``motion.py``, so the O(N^2) smoother runs once per scan, not once per 40 Hz
+``models/motion.py``, so the O(N^2) smoother runs once per scan, not once per 40 Hz
 control message.
 """
 from __future__ import annotations
@@ -19,23 +19,23 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from . import motion as motion_models
-from .angles import wrap_angle
+from ..models import motion as motion_models
+from ..models.angles import wrap_angle
 from .association import Gates, plan_associations
-from .config import SlamConfig
-from .em_complete import CompleteDataEM
-from .em_observed import ObservedInformationEM
-from .em_step import FilterStepData, MStep
+from ..config import SlamConfig
+from ..em.complete import CompleteDataEM
+from ..em.observed import ObservedInformationEM
+from ..em.step import FilterStepData, MStep
 from .inputs import MotionInput
-from .landmarks import LandmarkTable
-from .noise_learning import NoiseLearner
-from .observation import (component_precision_weight, innovation, inv_det_2x2, inverse_observation,
+from ..mapping.landmarks import LandmarkTable
+from ..em.noise_learning import NoiseLearner
+from ..models.observation import (component_precision_weight, innovation, inv_det_2x2, inverse_observation,
                           landmark_jacobian, noise_covariance, noise_loglik, predict_observation,
                           sensor_poses)
 from .particles import (effective_sample_size, normalize_log_weights, sample_gaussians,
                         systematic_resample, weighted_outer, weighted_pose_covariance,
                         weighted_pose_mean, weighted_sum)
-from .types import LandmarkMap, Observations, PoseEstimate, StepReport
+from ..types import LandmarkMap, Observations, PoseEstimate, StepReport
 
 MAP_FORMAT_VERSION = 1
 
@@ -545,12 +545,12 @@ class OnlineEMSlam:
         self._m_step.restore(arrays, self._map.theta)
 
     def save_map(self, path: str) -> None:
-        """Write map, statistics, counts and pose atomically (core/mapfile.py).
+        """Write map, statistics, counts and pose atomically (core/mapping/mapfile.py).
 
         The values are validated first: a non-finite estimate never replaces a good
         file.  The directory must exist (callers decide where files may be created).
         """
-        from . import mapfile  # noqa: PLC0415
+        from ..mapping import mapfile  # noqa: PLC0415
         data = self._m_step_arrays()
         data["pose"] = self.pose().mean
         mapfile.write_map(path, data)
@@ -561,7 +561,7 @@ class OnlineEMSlam:
         The file is validated completely before the state is touched; on any error
         (MapFileError, a ValueError naming the file) the estimate is left unchanged.
         """
-        from . import mapfile  # noqa: PLC0415
+        from ..mapping import mapfile  # noqa: PLC0415
         loaded = mapfile.read_map(path, max_landmarks=self.config.association.max_landmarks)
         pose = loaded["pose"].copy()
         pose[2] = wrap_angle(pose[2])

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .angles import wrap_angle
-from .config import MotionConfig
+from ..config import MotionConfig
 
 
 def _noise_cov(G: np.ndarray, variances: np.ndarray) -> np.ndarray:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .angles import circular_mean, wrap_angle
+from ..models.angles import circular_mean, wrap_angle
 
 
 def normalize_log_weights(log_weights: np.ndarray) -> tuple[np.ndarray, float]:

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .config import SlamConfig
-from .em_step import FilterStepData
-from .landmarks import LandmarkTable
-from .observation import inverse_observation
-from .particles import weighted_outer, weighted_sum
+from ..config import SlamConfig
+from .step import FilterStepData
+from ..mapping.landmarks import LandmarkTable
+from ..models.observation import inverse_observation
+from ..filter.particles import weighted_outer, weighted_sum
 from .statistics import (STAT_DIM, backward_kernel, differing_landmarks, forward_smooth,
                          information_covariance, m_step, observation_statistics, paris_indices,
                          paris_smooth)

@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .angles import wrap_angle
-from .particles import gaussian_transition_logpdf
+from ..models.angles import wrap_angle
+from ..filter.particles import gaussian_transition_logpdf
 
 STAT_DIM = 5
 

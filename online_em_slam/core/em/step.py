@@ -1,9 +1,9 @@
 """What one filter step hands to the EM update, and the interface every M-step variant offers.
 
-The filter step (core/slam.py) computes the particles, their weights and the
+The filter step (core/filter/slam.py) computes the particles, their weights and the
 observation terms; an M-step piece turns them into a new map.  Two pieces
-implement :class:`MStep`: the seed's complete-data M-step (em_complete.py) and
-the observed-information Newton step (em_observed.py).  ``em.m_step`` picks one.
+implement :class:`MStep`: the seed's complete-data M-step (complete.py) and
+the observed-information Newton step (observed.py).  ``em.m_step`` picks one.
 """
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
-from .landmarks import LandmarkTable
+from ..mapping.landmarks import LandmarkTable
 
 
 @dataclass
@@ -76,7 +76,7 @@ class MStep(Protocol):
         """Landmark covariances (M, 2, 2) reported with the map."""
 
     def saved_arrays(self) -> dict[str, np.ndarray]:
-        """Per-landmark state for the map file (core/mapfile.py keys: count, inv_n,
+        """Per-landmark state for the map file (core/mapping/mapfile.py keys: count, inv_n,
         stats, spread, avg_stats, avg_count)."""
 
     def restore(self, arrays: dict[str, np.ndarray], theta: np.ndarray) -> None:

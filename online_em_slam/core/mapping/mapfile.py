@@ -26,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from .statistics import STAT_DIM
+from ..em.statistics import STAT_DIM
 
 FORMAT_VERSION = 1
 # Refuse files claiming more rows than this before reading their data: a header can

@@ -14,8 +14,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
-from .config import AssociationConfig
-from .observation import innovation, mahalanobis_2d
+from ..config import AssociationConfig
+from ..models.observation import innovation, mahalanobis_2d
 
 NEW_LANDMARK = -1
 AMBIGUOUS = -2

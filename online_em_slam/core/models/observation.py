@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from .angles import wrap_angle
-from .config import ObservationNoiseConfig, SensorConfig
+from ..config import ObservationNoiseConfig, SensorConfig
 
 _LOG_2PI = math.log(2.0 * math.pi)
 # Below this distance (m) the bearing is undefined; clamp to keep H finite.

@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .config import SlamConfig
-from .em_step import FilterStepData
-from .landmarks import LandmarkTable
-from .observation import inv_det_2x2, landmark_jacobian, sensor_poses
+from ..config import SlamConfig
+from .step import FilterStepData
+from ..mapping.landmarks import LandmarkTable
+from ..models.observation import inv_det_2x2, landmark_jacobian, sensor_poses
 from .observed_information import ObservedInformation, StepFactors, motion_residual
-from .particles import symmetric_inverse_3x3, weighted_pose_mean
+from ..filter.particles import symmetric_inverse_3x3, weighted_pose_mean
 from .statistics import STAT_DIM, unpack
 
 

@@ -34,9 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
-from .angles import wrap_angle
-from .config import SensorConfig
-from .observation import innovation, landmark_jacobian, pose_jacobian, predict_observation, sensor_poses
+from ..models.angles import wrap_angle
+from ..config import SensorConfig
+from ..models.observation import innovation, landmark_jacobian, pose_jacobian, predict_observation, sensor_poses
 
 POSE_DIM = 3
 # Floors of the first-pose prior: a start known exactly still needs a finite

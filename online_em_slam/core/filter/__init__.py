@@ -1,0 +1,1 @@
+"""The particle filter over poses: input handling, association, the filter step."""

@@ -1,0 +1,1 @@
+"""The landmark map: the landmark table and the map file."""

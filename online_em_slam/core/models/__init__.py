@@ -1,0 +1,1 @@
+"""The HMM's models: motion (pose transition), range-bearing observation, angles."""
