@@ -190,7 +190,9 @@ def observations_from_message(msg, drops=None) -> Observations:
     zero range or a bearing beyond +-2 pi are left out and counted in ``drops``
     (a Counter, by reason: invalid_id, zero_range, bearing_out_of_range).  Other
     values are passed on (the core drops and counts non-finite and negative
-    ranges); bearings are wrapped to (-pi, pi].
+    ranges); bearings are wrapped to (-pi, pi].  When observations were left
+    out, the result carries their number as ``refused_points``: a cloud left
+    empty by them is counted under those reasons only, not as ``empty_cloud``.
     """
     columns = decode_message(msg, required=("range", "bearing"))
     ranges, bearings = _float_column(columns, "range"), _float_column(columns, "bearing")
@@ -206,4 +208,9 @@ def observations_from_message(msg, drops=None) -> Observations:
     keep = valid_id & ~zero & ~wild
     bearings = np.where(finite, wrap_angle(np.where(finite & keep, bearings, 0.0)), bearings)
     observations = Observations(ranges, bearings, ids, std["range_std"], std["bearing_std"])
-    return observations if keep.all() else observations.subset(keep)
+    if keep.all():
+        return observations
+    observations = observations.subset(keep)
+    # A cloud emptied by these refusals is counted under them, not once more as an empty cloud.
+    observations.refused_points = int((~keep).sum())
+    return observations

@@ -134,6 +134,28 @@ def test_invalid_ids_are_dropped_and_counted_not_treated_as_unknown(id_type, goo
     assert drops == {"invalid_id": len(bad_ids)}
 
 
+
+@pytest.mark.parametrize("columns, layout, reason", [
+    ({"range": np.full(3, 5.0), "bearing": np.zeros(3), "id": np.array([np.nan, 1e20, -7.0])},
+     (("range", "f4"), ("bearing", "f4"), ("id", "f8")), "invalid_id"),
+    ({"range": np.zeros(2), "bearing": np.zeros(2)}, (("range", "f4"), ("bearing", "f4")), "zero_range")])
+def test_a_cloud_emptied_by_refused_points_is_counted_once_under_their_reason(columns, layout, reason):
+    """Issue 12: a cloud whose ids are all invalid was counted as invalid_id and again as empty_cloud."""
+    from collections import Counter
+    from online_em_slam.pipeline import OBSERVATIONS, ODOMETRY, Feeder, Input
+    from online_em_slam.ros import conversions as conv
+    drops = Counter()
+    config = SlamConfig.from_dict({"motion": {"model": "odometry"}, "filter": {"seed": 1, "num_particles": 10}})
+    feeder = Feeder(OnlineEMSlam(config), "odom", drops)
+    feeder.apply(Input(0.0, ODOMETRY, payload=(0.0, 0.0, 0.0)))
+    emptied = conv.observations_from_cloud(make_cloud(columns, layout), drops=drops)
+    fed = feeder.apply(Input(0.1, OBSERVATIONS, payload=emptied))
+    truly_empty = conv.observations_from_cloud(make_cloud({"range": np.zeros(0), "bearing": np.zeros(0)},
+                                                          (("range", "f4"), ("bearing", "f4"))), drops=drops)
+    feeder.apply(Input(0.2, OBSERVATIONS, payload=truly_empty))
+    assert fed.trajectory_point is not None          # still "nothing seen up to here" for the path
+    assert drops == {reason: len(columns["range"]), "empty_cloud": 1}, drops
+
 def test_zero_ranges_and_huge_bearings_are_dropped_and_counted_bearings_wrapped():
     from collections import Counter
     from std_msgs.msg import Header

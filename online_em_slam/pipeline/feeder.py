@@ -2,7 +2,8 @@
 
 Works with every estimator of the package (``add_control``, ``add_odometry``,
 ``add_observations``, ``pose``).  Empty clouds carry no observation and are
-not fed (``empty_cloud``); observations before the first motion input have no
+not fed (``empty_cloud``, unless the cloud reader emptied it: its points are
+already counted by reason, ``invalid_id`` and the like); observations before the first motion input have no
 pose to hang on (``no_motion_input``).  The trajectory is the estimator's pose
 after each observation message, once per estimator stamp: the node publishes it
 as ``~/path`` and the offline runner writes it as trajectory.csv, so the two
@@ -54,7 +55,8 @@ class Feeder:
     def _observations(self, item: Input, use_observations: bool) -> Fed:
         fed = Fed()
         if item.is_empty_cloud:
-            self.drops["empty_cloud"] += 1
+            if not item.refused_points:      # emptied by the reader: counted once, under its reasons
+                self.drops["empty_cloud"] += 1
         elif not self.motion_seen:
             self.drops["no_motion_input"] += 1
             return fed

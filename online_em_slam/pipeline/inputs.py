@@ -25,3 +25,8 @@ class Input:
     @property
     def is_empty_cloud(self) -> bool:
         return self.kind == OBSERVATIONS and len(self.payload) == 0
+
+    @property
+    def refused_points(self) -> int:
+        """Observations the cloud reader left out (already counted by reason; online_em_slam.cloud)."""
+        return int(getattr(self.payload, "refused_points", 0)) if self.kind == OBSERVATIONS else 0
