@@ -139,3 +139,27 @@ def test_paris_draws_follow_the_backward_kernel():
     draws = paris_indices(log_w, means, covs, np.repeat(target, 4000, axis=0), 2, rng)
     freq = np.bincount(draws.ravel(), minlength=5) / draws.size
     np.testing.assert_allclose(freq, kernel, atol=0.02)
+
+
+def test_smoothers_are_pieces_named_by_the_configuration():
+    """One interface, picked by filter.smoother: each piece is the kernel it names."""
+    from types import SimpleNamespace
+
+    from online_em_slam.core.config import SMOOTHERS, FilterConfig
+    from online_em_slam.core.em.statistics import SMOOTHERS as PIECES, make_smoother, paris_smooth
+    assert tuple(PIECES) == SMOOTHERS
+    rng = np.random.default_rng(5)
+    n = 6
+    means, covs = _random_step(rng, n)
+    data = SimpleNamespace(log_weights_prev=np.log(rng.dirichlet(np.ones(n))), transition_means=means,
+                           transition_covs=covs, particles=rng.normal(size=(n, 3)),
+                           ancestors=rng.integers(0, n, n))
+    tau = rng.normal(size=(n, 4, 5))
+    kernel = backward_kernel(data.log_weights_prev, means, covs, data.particles)
+    expected = {"forward": forward_smooth(tau, kernel), "ancestry": tau[data.ancestors],
+                "paris": paris_smooth(tau, paris_indices(data.log_weights_prev, means, covs, data.particles,
+                                                         3, np.random.default_rng(9)))}
+    for name in SMOOTHERS:
+        smoother = make_smoother(FilterConfig(smoother=name, paris_draws=3), np.random.default_rng(9))
+        np.testing.assert_array_equal(smoother.update(tau, data), expected[name])
+        assert smoother.whole_table == (name == "ancestry")

@@ -2,8 +2,8 @@
 
 docs/METHOD.md, "Complete-data M-step".  Each particle carries tau^i (N, M, 5), the
 expectation of the accumulated statistics (S) given its pose; a smoother
-(forward-only, PaRIS or ancestry) carries tau from the particles at t-1 to
-those at t, then the step's statistics are blended in with the step size
+(forward-only, PaRIS or ancestry: one piece of statistics.SMOOTHERS) carries tau
+from the particles at t-1 to those at t, then the step's statistics are blended in with the step size
 gamma_n (online EM) or summed over a block (Block Online EM), and the M-step
 solves A_k theta_k = b_k on the weighted particle mean S = sum_i w^i tau^i.
 """
@@ -16,9 +16,8 @@ from .step import FilterStepData
 from ..mapping.landmarks import LandmarkTable
 from ..models.observation import inverse_observation
 from ..filter.particles import weighted_outer, weighted_sum
-from .statistics import (STAT_DIM, backward_kernel, differing_landmarks, forward_smooth,
-                         information_covariance, m_step, observation_statistics, paris_indices,
-                         paris_smooth)
+from .statistics import (STAT_DIM, differing_landmarks, information_covariance, m_step, make_smoother,
+                         observation_statistics)
 
 
 class CompleteDataEM:
@@ -26,7 +25,7 @@ class CompleteDataEM:
 
     def __init__(self, config: SlamConfig, n_particles: int, rng: np.random.Generator) -> None:
         self.config = config
-        self._rng = rng
+        self.smoother = make_smoother(config.filter, rng)    # forward, paris or ancestry
         self.tau = np.zeros((n_particles, 0, STAT_DIM))   # per-particle auxiliary statistics
         self.stats = np.zeros((0, STAT_DIM))             # smoothed statistic S_k of the last M-step
         self.spread = np.zeros((0, 2, 2))                # pose-induced landmark covariance (SA average)
@@ -75,31 +74,23 @@ class CompleteDataEM:
         return None
 
     def _smooth(self, data: FilterStepData) -> np.ndarray:
-        """Forward-only / PaRIS / ancestry smoothing of tau from t-1 to t.
+        """tau from t-1 to t by the configured smoother (statistics.SMOOTHERS).
 
-        Both kernels average the previous statistics (rows sum to one), so a
+        The kernels average the previous statistics (rows sum to one), so a
         landmark whose statistic is already the same in every particle keeps it:
-        only the landmarks that still differ are smoothed.  In a large map most
-        landmarks are out of sight and collapsed; an observation raises the flag again.
+        only the landmarks that still differ are smoothed (unless the smoother
+        takes the whole table).  In a large map most landmarks are out of sight
+        and collapsed; an observation raises the flag again.
         """
         tau = self.tau
-        smoother = self.config.filter.smoother
         candidates = np.flatnonzero(self.differing)
         if candidates.size:
             self.differing[candidates] = differing_landmarks(tau[:, candidates])
-        if smoother == "ancestry":
-            return tau[data.ancestors]
+        if self.smoother.whole_table:
+            return self.smoother.update(tau, data)
         active = np.flatnonzero(self.differing)
-        if not active.size:
-            return tau
-        if smoother == "paris":
-            idx = paris_indices(data.log_weights_prev, data.transition_means, data.transition_covs,
-                                data.particles, self.config.filter.paris_draws, self._rng)
-            tau[:, active] = paris_smooth(tau[:, active], idx)
-        else:
-            kernel = backward_kernel(data.log_weights_prev, data.transition_means, data.transition_covs,
-                                     data.particles)
-            tau[:, active] = forward_smooth(tau[:, active], kernel)
+        if active.size:
+            tau[:, active] = self.smoother.update(tau[:, active], data)
         return tau
 
     def _online_update(self, rows, stats_new, spread_new, weights, table: LandmarkTable) -> None:

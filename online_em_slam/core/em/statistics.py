@@ -16,14 +16,22 @@ it from the particles at t-1 to those at t:
     paris     tau_t^i = (1/K) sum_k tau_{t-1}^{J_ik},   J_ik ~ beta_t(i, .) by accept-reject
     ancestry  tau_t^i = tau_{t-1}^{a_i}
 
-before the new statistic is blended in (online EM) or added (block EM).
+before the new statistic is blended in (online EM) or added (block EM).  Each is
+a small piece with one interface, :class:`Smoother` (``update(tau_prev, data)``),
+and ``SMOOTHERS`` picks one by its ``filter.smoother`` name (:func:`make_smoother`).
 """
 from __future__ import annotations
+
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from ..models.angles import wrap_angle
 from ..filter.particles import gaussian_transition_logpdf
+
+if TYPE_CHECKING:
+    from ..config import FilterConfig
+    from .step import FilterStepData
 
 STAT_DIM = 5
 
@@ -156,3 +164,71 @@ def paris_indices(log_weights_prev: np.ndarray, means: np.ndarray, covariances: 
 def paris_smooth(tau_prev: np.ndarray, indices: np.ndarray) -> np.ndarray:
     """tau_t^i = (1/K) sum_k tau_{t-1}^{J_ik}."""
     return tau_prev[indices].mean(axis=1)
+
+
+# ------------------------------------------------------------ smoothers
+class Smoother(Protocol):
+    """Carries per-particle statistics (N_{t-1}, ...) to the particles at t (N_t, ...).
+
+    ``whole_table``: apply it to every landmark's statistic.  Otherwise only to
+    those that still differ across particles: a kernel whose rows sum to one
+    leaves a statistic equal in every particle as it is.
+    """
+
+    whole_table: bool
+
+    def update(self, tau_prev: np.ndarray, data: FilterStepData) -> np.ndarray:
+        """tau_t from tau_{t-1} and the filter step's particles, weights and transition (T)."""
+
+
+class ForwardSmoother:
+    """Forward-only smoothing: tau_t^i = sum_j beta_t(i, j) tau_{t-1}^j, one (N x N) kernel, O(N^2)."""
+
+    whole_table = False
+
+    def __init__(self, config: FilterConfig, rng: np.random.Generator) -> None:
+        pass
+
+    def update(self, tau_prev: np.ndarray, data: FilterStepData) -> np.ndarray:
+        kernel = backward_kernel(data.log_weights_prev, data.transition_means, data.transition_covs,
+                                 data.particles)
+        return forward_smooth(tau_prev, kernel)
+
+
+class ParisSmoother:
+    """PaRIS: tau_t^i = (1/K) sum_k tau_{t-1}^{J_ik}, K = ``paris_draws`` draws from beta_t(i, .), O(NK)."""
+
+    whole_table = False
+
+    def __init__(self, config: FilterConfig, rng: np.random.Generator) -> None:
+        self.draws = config.paris_draws
+        self.rng = rng
+
+    def update(self, tau_prev: np.ndarray, data: FilterStepData) -> np.ndarray:
+        indices = paris_indices(data.log_weights_prev, data.transition_means, data.transition_covs,
+                                data.particles, self.draws, self.rng)
+        return paris_smooth(tau_prev, indices)
+
+
+class AncestrySmoother:
+    """Ancestry: tau_t^i = tau_{t-1}^{a_i}, O(N); degenerates on long horizons.
+
+    A copy costs no more than selecting the statistics that still differ, so it
+    is applied to every landmark.
+    """
+
+    whole_table = True
+
+    def __init__(self, config: FilterConfig, rng: np.random.Generator) -> None:
+        pass
+
+    def update(self, tau_prev: np.ndarray, data: FilterStepData) -> np.ndarray:
+        return tau_prev[data.ancestors]
+
+
+SMOOTHERS: dict[str, type] = {"forward": ForwardSmoother, "paris": ParisSmoother, "ancestry": AncestrySmoother}
+
+
+def make_smoother(config: FilterConfig, rng: np.random.Generator) -> Smoother:
+    """The smoother named by ``config.smoother`` (one of core.config.SMOOTHERS)."""
+    return SMOOTHERS[config.smoother](config, rng)
