@@ -7,11 +7,13 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test benchmark install clean
 
-$(STAMP): requirements.txt setup.py
+$(STAMP): requirements.txt requirements-tf2.txt setup.py
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -r requirements.txt
 	$(PY) -m pip install -q --no-deps -e .
+	@# tf2_msgs (TFMessage) built from the rosidl wheels, so map -> odom goes on /tf; never fails the install
+	-$(PY) tools/build_tf2_msgs.py
 	touch $(STAMP)
 
 install: $(STAMP)

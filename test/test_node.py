@@ -73,11 +73,22 @@ class Harness:
                                  ("path", Path, latched_qos()),
                                  ("particles", PoseArray, 10),
                                  ("landmarks", PointCloud2, latched_qos()),
-                                 ("landmark_markers", MarkerArray, latched_qos()),
-                                 ("map_to_odom", TransformStamped, 100)):
+                                 ("landmark_markers", MarkerArray, latched_qos())):
             self.subscribe(f"/{NAME}/{topic}", kind, qos, topic)
+        self.subscribe_map_to_odom()
         self.subscribe("/diagnostics", DiagnosticArray, 10, "diagnostics")
         return self.node
+
+    def subscribe_map_to_odom(self) -> None:
+        """received["map_to_odom"]: map -> odom where the node sends it, /tf when tf2_ros or
+        tf2_msgs is importable (make install builds tf2_msgs), else ~/map_to_odom."""
+        if not self.node._tf.kind.startswith("tf2"):
+            return self.subscribe(f"/{NAME}/map_to_odom", TransformStamped, 100, "map_to_odom")
+        from tf2_msgs.msg import TFMessage
+        received = self.received["map_to_odom"] = []
+        odom = self.node.get_parameter("odom_frame").value
+        self._subs.append(self.tester.create_subscription(
+            TFMessage, "/tf", lambda msg: received.extend(t for t in msg.transforms if t.child_frame_id == odom), 100))
 
     def subscribe(self, topic, kind, qos, key):
         self.received[key] = []

