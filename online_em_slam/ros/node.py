@@ -64,6 +64,7 @@ from .initial_pose import pose_and_std
 ODOMETRY_POSITION_LIMIT = 1e7
 from .input_watch import InputWatch
 from .path_history import PathHistory
+from .tf import SensorFrames
 from .params import ParameterError, build, current_values, declare_parameters
 
 
@@ -156,7 +157,8 @@ class OnlineEmSlamNode(Node):
         self.get_logger().info(
             f"online EM SLAM: motion_source={s.motion_source} (model {self._config.motion.model}), "
             f"{self._config.filter.num_particles} particles, EM {self._config.em.algorithm}; "
-            f"map -> odom via {self._tf.kind}" + ("" if s.publish_tf else " (publish_tf is false)"))
+            f"map -> odom via {self._tf.kind}" + ("" if s.publish_tf else " (publish_tf is false)")
+            + f"; sensor pose from {'TF, else ' if self._frames.uses_tf else ''}sensor.offset_*")
 
     # ------------------------------------------------------------------ helpers
     def _init_outputs_and_statistics(self, s) -> None:
@@ -169,7 +171,7 @@ class OnlineEmSlamNode(Node):
         self._last_tf_ns = -1
         self._path = PathHistory(s.path_max_length, s.path_publish_max_poses)
         self._corrected: Counter = Counter()       # inputs used after a repair (normalised quaternions)
-        self._unexpected_frames: Counter = Counter()   # observation clouds by unexpected frame id
+        self._frames = SensorFrames(self)          # frame ids checked; the sensor pose from TF (tf2_ros)
         self._watch = InputWatch()                 # silent input streams turn diagnostics WARN
         self._map_dirty = True
 
@@ -286,6 +288,7 @@ class OnlineEmSlamNode(Node):
         yaw, quaternion_problem = conv.odometry_yaw(q)
         pose = np.array([p.x, p.y, yaw], dtype=float)
         with self._lock:
+            self._frames.check_odometry(msg.child_frame_id, self._settings)
             if quaternion_problem == "degenerate_quaternion":
                 self._refuse(ODOMETRY, stamp, quaternion_problem, "odometry with a degenerate (zero or "
                              f"yaw-less) orientation quaternion ({q.x}, {q.y}, {q.z}, {q.w})", started)
@@ -345,7 +348,9 @@ class OnlineEmSlamNode(Node):
                 self._refuse(OBSERVATIONS, stamp, "malformed_cloud", f"malformed observation cloud: {error}",
                              started)
                 return
-            self._check_frame(msg.header.frame_id)
+            # Into the estimator's sensor frame: through TF when it resolves the cloud's frame.
+            observations = self._frames.observations(msg.header.frame_id, stamp, observations, self._settings,
+                                                     self._slam.config.sensor)
             # An empty cloud goes through the merge too: it says "nothing seen up to here".
             self._input(OBSERVATIONS, stamp, observations, started)
             self._load.add(time.monotonic(), time.monotonic() - started)
@@ -367,18 +372,6 @@ class OnlineEmSlamNode(Node):
             self._slam.set_pose(pose, std)
             self.get_logger().info(f"pose set to ({pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.3f}) "
                                    f"from /initialpose; the map is kept")
-
-    def _check_frame(self, frame: str) -> None:
-        """Ranges and bearings are read as sensor-relative: a cloud in the map or odom frame (or
-        not the configured sensor_frame) is probably misread; used, but counted and warned about."""
-        s = self._settings
-        expected = {s.sensor_frame, s.base_frame} if s.sensor_frame else None
-        if (frame in expected) if expected else frame not in (s.map_frame, s.odom_frame):
-            return
-        self._unexpected_frames[frame] += 1
-        self.get_logger().warning(f"observation cloud in frame {frame!r}, expected "
-                                  f"{s.sensor_frame or 'a sensor frame'!r}: read as sensor-relative",
-                                  throttle_duration_sec=s.warn_throttle_period)
 
     def _refuse(self, kind: int, stamp: float, reason: str, what: str, started: float) -> None:
         """An input whose payload is unusable: counted, and its stamp still advances its stream."""
@@ -600,8 +593,7 @@ class OnlineEmSlamNode(Node):
                 values.update({f"noise_learned.{k}": v for k, v in learned.items() if k not in ("enabled", "learning")})
             values.update({f"dropped.{reason}": count for reason, count in sorted(drops.items())})
             values.update({f"corrected.{reason}": count for reason, count in sorted(self._corrected.items())})
-            values.update({f"unexpected_frame.{frame or '(empty)'}": count
-                           for frame, count in sorted(self._unexpected_frames.items())})
+            values.update(self._frames.diagnostics())      # unexpected_frame.*, unexpected_child_frame.*
             level, message = DiagnosticStatus.OK, f"{len(landmarks)} landmarks"
             if self._paused:
                 level, message = DiagnosticStatus.WARN, "paused"
