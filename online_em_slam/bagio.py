@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections import Counter
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator
 
 
 def _typestore():
@@ -38,7 +38,19 @@ def read_bag(path, topics: Iterable[str] | None = None) -> Iterator[tuple[str, f
     ``stamp_seconds`` is the header stamp when the message has one (the dataset
     time), otherwise the log time.  ``topics`` restricts the topics read (all by
     default).  Message definitions stored in the bag are used for types that the
-    Jazzy typestore does not know.
+    Jazzy typestore does not know.  One message at a time is held: a bag of any
+    size streams.
+    """
+    for topic, stamp, msg, _ in read_bag_timed(path, topics):
+        yield topic, stamp, msg
+
+
+def read_bag_timed(path, topics: Iterable[str] | None = None,
+                   decode: Callable[[str], bool] | None = None) -> Iterator[tuple[str, float, object, float]]:
+    """:func:`read_bag` with the log time: (topic, stamp_seconds, message, log_time_seconds).
+
+    ``decode(topic)``, asked per message, False: the message is not deserialized
+    (yielded as None, stamped with its log time), for passes that only count.
     """
     wanted = None if topics is None else set(topics)
     with _open(path) as reader:
@@ -46,8 +58,11 @@ def read_bag(path, topics: Iterable[str] | None = None) -> Iterator[tuple[str, f
         if not conns:
             return
         for conn, log_time, raw in reader.messages(connections=conns):
+            if decode is not None and not decode(conn.topic):
+                yield conn.topic, log_time * 1e-9, None, log_time * 1e-9
+                continue
             msg = reader.deserialize(raw, conn.msgtype)
-            yield conn.topic, message_stamp(msg, log_time), msg
+            yield conn.topic, message_stamp(msg, log_time), msg, log_time * 1e-9
 
 
 def bag_topics(path) -> dict[str, tuple[str, int]]:

@@ -1,9 +1,10 @@
 """Offline runs: a bag straight into an estimator (no DDS), deterministic for a seed.
 
-The bag is read with rosbags (no rclpy) and fed through the node's own input
-path (:mod:`online_em_slam.pipeline`: stamp checks, the (stamp, kind) ordered
-merge of the streams, the feeder), so the estimator sees the identical sequence
-of inputs as the node.  Observation clouds are read by the node's reader
+The bag is read with rosbags (no rclpy) and streamed, one message at a time,
+through the node's own input path (:mod:`online_em_slam.pipeline`: stamp checks,
+the (stamp, kind) ordered merge of the streams within the node's ``input_delay``
+window, the feeder), so the estimator sees the identical sequence of inputs as
+the node and memory does not grow with the bag.  Observation clouds are read by the node's reader
 (:func:`online_em_slam.cloud.observations_from_message`) and odometry
 orientations by the node's quaternion check (:mod:`online_em_slam.quaternion`).
 What the input path or the readers refuse is counted by reason
@@ -13,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,10 +41,16 @@ def _absolute(topic: str) -> str:
 
 @dataclass
 class BagInputs:
-    """Everything a run needs from a bag, in log-time order (read once, reused by compare)."""
+    """What a run needs from a bag: the inputs, streamed, and the compact references.
+
+    ``events`` re-reads the bag at each iteration (one message held at a time, so
+    a bag of any size streams; compare runs it once per method); odometry poses,
+    GPS and the surveyed landmarks are read once, as arrays (tens of bytes a
+    message), for the initial pose and the metrics.
+    """
 
     path: str
-    events: list                          # (kind, stamp, payload), kind as in online_em_slam.pipeline
+    events: "BagEvents"                   # (kind, stamp, payload, log_time), kind as in online_em_slam.pipeline
     odom_times: np.ndarray
     odom_poses: np.ndarray
     gps_times: np.ndarray
@@ -51,26 +58,67 @@ class BagInputs:
     landmarks: np.ndarray | None          # (K, 2) surveyed landmarks
     landmark_ids: np.ndarray | None
     topics: dict = field(default_factory=dict)
-    refused: Counter = field(default_factory=Counter)   # inputs the readers refused, by reason
+    refused: Counter = field(default_factory=Counter)   # inputs the readers refused, by reason (set by feed)
     motion_source: str = "odom"           # which motion input drives the estimator (node setting)
     jump_threshold: float = 1.0           # node setting time_jump_threshold (stamp outliers)
+    start: float | None = None            # stamp of the first input, in log-time order
+    input_delay: float = 1.0              # node setting: the reorder window (s of log time), see feed
 
     @property
     def has_gps(self) -> bool:
         return len(self.gps_times) >= 2
 
 
-class _BagReader:
-    """Collects a bag's messages into BagInputs, one handler per topic."""
+class BagEvents:
+    """The bag's motion and observation inputs in log-time order, read anew at each iteration.
 
-    def __init__(self, settings):
+    ``stream(refused)`` yields (kind, stamp, payload, log_time) and counts what the
+    readers refuse in ``refused``; ``len`` is the number of messages on the input
+    topics (so ``not events`` says there are none).
+    """
+
+    def __init__(self, bag, settings, count: int) -> None:
+        self.bag, self.settings, self.count = bag, settings, int(count)
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __iter__(self):
+        return self.stream(Counter())
+
+    def stream(self, refused: Counter):
+        from .bagio import read_bag_timed
+
+        reader = _BagReader(self.settings, keep_poses=False)
+        reader.refused = refused
+        for topic, stamp, msg, log_time in read_bag_timed(self.bag, reader.input_topics):
+            reader.handlers[topic](stamp, msg)
+            while reader.events:
+                kind, stamp, payload = reader.events.popleft()
+                yield kind, stamp, payload, log_time
+
+
+class _BagReader:
+    """A bag's messages to inputs, one handler per topic: motion and observation messages
+    become events (kind, stamp, payload) queued in ``events`` until taken; odometry poses
+    (``keep_poses``), GPS and the surveyed landmarks are collected."""
+
+    def __init__(self, settings, keep_poses: bool = True):
         self.motion_source = settings.motion_source
-        self.handlers = {_absolute(settings.observations_topic): self.observations,
-                         _absolute(settings.odom_topic): self.odometry,
+        self.keep_poses = keep_poses
+        odom, observations = _absolute(settings.odom_topic), _absolute(settings.observations_topic)
+        self.handlers = {observations: self.observations, odom: self.odometry,
                          GT_POSITION_TOPIC: self.gps, GT_LANDMARKS_TOPIC: self.surveyed_landmarks}
+        self.event_topics = {observations}
         if settings.motion_source == "control":
-            self.handlers[_absolute(settings.control_topic)] = self.control
-        self.events, self.odom_t, self.odom_p, self.gps_t, self.gps_xy = [], [], [], [], []
+            control = _absolute(settings.control_topic)
+            self.handlers[control] = self.control
+            self.event_topics.add(control)
+        else:
+            self.event_topics.add(odom)
+        self.input_topics = self.event_topics | {odom}      # odometry refusals are counted in any mode
+        self.events: deque = deque()
+        self.odom_t, self.odom_p, self.gps_t, self.gps_xy = [], [], [], []
         self.landmarks = self.landmark_ids = None
         self.refused: Counter = Counter()
         self.counts: Counter = Counter()
@@ -82,8 +130,9 @@ class _BagReader:
             self.refused[problem] += 1
             return
         pose = (float(p.x), float(p.y), yaw)
-        self.odom_t.append(stamp)
-        self.odom_p.append(pose)
+        if self.keep_poses:
+            self.odom_t.append(stamp)
+            self.odom_p.append(pose)
         if self.motion_source == "odom":
             self.events.append((ODOMETRY, stamp, pose))
 
@@ -109,18 +158,29 @@ class _BagReader:
 
 
 def read_inputs(bag, settings) -> BagInputs:
-    """Read the motion, observation and ground-truth topics of ``bag`` (settings: NodeSettings)."""
-    from .bagio import read_bag
+    """First pass over ``bag`` (settings: NodeSettings): odometry poses, GPS, surveyed landmarks,
+    message counts and the first input's stamp; the inputs themselves stream from ``events``."""
+    from .bagio import read_bag_timed
 
     reader = _BagReader(settings)
-    for topic, stamp, msg in read_bag(bag, set(reader.handlers)):
+    start = None
+
+    def decode(topic: str) -> bool:          # input clouds and controls: only the first is decoded
+        return start is None or topic not in reader.event_topics or topic == _absolute(settings.odom_topic)
+
+    for topic, stamp, msg, _ in read_bag_timed(bag, set(reader.handlers), decode):
         reader.counts[topic] += 1
-        reader.handlers[topic](stamp, msg)
-    return BagInputs(str(bag), reader.events, np.asarray(reader.odom_t, dtype=float),
-                     np.asarray(reader.odom_p, dtype=float).reshape(-1, 3), np.asarray(reader.gps_t, dtype=float),
-                     np.asarray(reader.gps_xy, dtype=float).reshape(-1, 2), reader.landmarks,
-                     reader.landmark_ids, dict(reader.counts), reader.refused, settings.motion_source,
-                     settings.time_jump_threshold)
+        if msg is not None:
+            reader.handlers[topic](stamp, msg)
+        if reader.events:
+            start = reader.events[0][1] if start is None else start
+            reader.events.clear()
+    n_inputs = sum(reader.counts[t] for t in reader.event_topics)
+    return BagInputs(str(bag), BagEvents(bag, settings, n_inputs if start is not None else 0),
+                     np.asarray(reader.odom_t, dtype=float), np.asarray(reader.odom_p, dtype=float).reshape(-1, 3),
+                     np.asarray(reader.gps_t, dtype=float), np.asarray(reader.gps_xy, dtype=float).reshape(-1, 2),
+                     reader.landmarks, reader.landmark_ids, dict(reader.counts), Counter(), settings.motion_source,
+                     settings.time_jump_threshold, start, settings.input_delay)
 
 
 # --------------------------------------------------------------------------- initial pose
@@ -135,7 +195,7 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 def choose_initial_pose(mode: str, inputs: BagInputs, config: SlamConfig, settings, file_values: dict
                         ) -> InitialPose:
     """``--initial-pose`` (see :mod:`online_em_slam.cli`): auto, params, gps or X,Y,YAW."""
-    start = inputs.events[0][1] if inputs.events else 0.0
+    start = inputs.start if inputs.start is not None else 0.0
     sets_pose = any(k.startswith("initial_pose.") for k in file_values)
     if mode == "auto":
         mode = "params" if sets_pose else ("gps" if inputs.has_gps else "params")
@@ -189,28 +249,40 @@ def motion_streams(motion_source: str) -> tuple[int, ...]:
 
 
 def feed(estimator, inputs: BagInputs) -> RunResult:
-    """Feed the events through the node's input path; record the pose after every observation message.
+    """Stream the bag's inputs through the node's input path; record the pose after every observation message.
 
-    The bag stands for streams that never fall silent (no wall clock): the merge
-    waits for every stream and the end of the bag releases the rest.
+    The bag's log time stands for the node's wall clock (it is when the inputs
+    arrived): the merge waits for a stream only while it delivers within
+    ``input_delay`` of log time, the node's rule, so the inputs held for
+    reordering are bounded by that window (and by how far a live stream's stamps
+    lag), not by the bag.  An input that arrives after its place in the order
+    was released is counted (``out_of_order``, as in the node); the end of the
+    bag releases the rest.  ``wall_time`` is the time spent in the input path and
+    the estimator (reading the bag excluded).
     """
-    path = InputPath(motion_streams(inputs.motion_source), silence=math.inf,
+    path = InputPath(motion_streams(inputs.motion_source), silence=inputs.input_delay,
                      jump_threshold=inputs.jump_threshold, restart_on_jump_back=False)
     feeder = Feeder(estimator, inputs.motion_source, path.drops)
-    durations, rows = [], []
-    started = time.perf_counter()
-    for kind, stamp, payload in inputs.events:
-        for item in path.push(kind, stamp, payload, 0.0).released:
+    durations, rows, refused = [], [], Counter()
+    first = last = None
+    n_obs_msgs, busy = 0, 0.0
+    for kind, stamp, payload, log_time in inputs.events.stream(refused):
+        first = stamp if first is None or stamp < first else first
+        last = stamp if last is None or stamp > last else last
+        n_obs_msgs += kind == OBSERVATIONS
+        started = time.perf_counter()
+        for item in path.push(kind, stamp, payload, log_time).released:
             _feed_one(feeder, item, durations, rows)
+        busy += time.perf_counter() - started
+    started = time.perf_counter()
     for item in path.flush():
         _feed_one(feeder, item, durations, rows)
-    wall = time.perf_counter() - started
-    stamps = [stamp for _, stamp, _ in inputs.events]
+    busy += time.perf_counter() - started
+    inputs.refused = refused
     skipped = {k: int(v) for k, v in path.drops.items() if v}
-    skipped.update({k: int(v) for k, v in inputs.refused.items() if v})
-    n_obs_msgs = sum(kind == OBSERVATIONS for kind, _, _ in inputs.events)
-    return RunResult("", np.asarray(rows, dtype=float).reshape(-1, 4), estimator.landmarks(), durations, wall,
-                     (max(stamps) - min(stamps)) if stamps else 0.0, dict(estimator.drops), skipped, n_obs_msgs)
+    skipped.update({k: int(v) for k, v in refused.items() if v})
+    return RunResult("", np.asarray(rows, dtype=float).reshape(-1, 4), estimator.landmarks(), durations, busy,
+                     (last - first) if first is not None else 0.0, dict(estimator.drops), skipped, n_obs_msgs)
 
 
 def _feed_one(feeder: Feeder, item, durations: list, rows: list) -> None:
