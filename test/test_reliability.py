@@ -243,3 +243,22 @@ def test_map_file_is_read_only_and_confined_in_the_parameter_table():
     from online_em_slam.ros.params import NODE_SPECS
     specs = {spec.name: spec for spec in NODE_SPECS}
     assert specs["map_file"].read_only and specs["map_directory"].read_only
+
+
+def test_a_time_line_restart_keeps_the_map_and_takes_earlier_stamps():
+    """Issue 12 defect 6: the automatic reset on a confirmed time jump keeps the map."""
+    from online_em_slam.core.types import Observations
+    config = SlamConfig.from_dict({"motion": {"model": "odometry"}, "filter": {"seed": 1, "num_particles": 20}})
+    slam = OnlineEMSlam(config)
+    for k in range(5):
+        slam.add_odometry(100.0 + 0.1 * k, (0.1 * k, 0.0, 0.0))
+        slam.add_observations(100.0 + 0.1 * k, Observations(np.array([5.0 - 0.1 * k]), np.zeros(1), np.array([7])))
+    before = slam.landmarks()
+    slam.restart_time_line((0.0, 0.0, 0.0))
+    assert slam.last_stamp is None
+    np.testing.assert_array_equal(slam.landmarks().positions, before.positions)
+    assert slam.add_odometry(10.0, (50.0, 50.0, 1.0))          # a new odometry frame: a reference, no motion
+    assert slam.add_odometry(10.1, (50.1, 50.0, 1.0))
+    slam.add_observations(10.1, Observations(np.array([4.9]), np.zeros(1), np.array([7])))
+    after = slam.landmarks()
+    assert len(after) == 1 and after.n_obs[0] == before.n_obs[0] + 1 and "out_of_order" not in slam.drops

@@ -393,7 +393,7 @@ class OnlineEmSlamNode(Node):
         if pushed.restarted:
             jump = pushed.jump
             self._reset(f"{KIND_NAME[jump.released[0].kind]} stamps jumped back {jump.size:.3f} s "
-                        f"(confirmed by {len(jump.released)} inputs)", keep_inputs=True)
+                        f"(confirmed by {len(jump.released)} inputs)", keep_inputs=True, keep_map=True)
         elif pushed.jump is not None:
             self.get_logger().warning(f"input stamps jumped {'back' if pushed.jump.backward else 'ahead'} "
                                       f"{pushed.jump.size:.3f} s (confirmed by {len(pushed.jump.released)} inputs)")
@@ -634,7 +634,7 @@ class OnlineEmSlamNode(Node):
         now = self._now_sec()
         newest = self._inputs_path.newest
         if s.reset_on_time_jump and newest is not None and newest > now + s.time_jump_threshold:
-            self._reset(f"clock jumped back to {now:.3f} s")
+            self._reset(f"clock jumped back to {now:.3f} s", keep_map=True)
 
     def _housekeeping(self) -> None:
         with self._lock:
@@ -642,11 +642,14 @@ class OnlineEmSlamNode(Node):
             # A stream that went silent stops holding the others back.
             self._use(self._inputs_path.release(time.monotonic()))
 
-    def _reset(self, reason: str, keep_inputs: bool = False) -> None:
-        """Restart the estimate; ``keep_inputs``: the input path already restarted on a confirmed jump."""
+    def _reset(self, reason: str, keep_inputs: bool = False, keep_map: bool = False) -> None:
+        """Restart the estimate; ``keep_inputs``: the input path already restarted on a confirmed jump;
+        ``keep_map`` (a time jump, not asked by the user): only the pose and the time line restart."""
         with self._lock:
             s = self._settings
-            if self._pending_config is not None:
+            if keep_map:                 # as robot_localization and AMCL, the state survives a time jump
+                self._slam.restart_time_line(s.initial_pose)
+            elif self._pending_config is not None:
                 self._core_drops_carry.update(self._slam.drops)
                 self._config = self._pending_config
                 self._pending_config = None
@@ -665,7 +668,7 @@ class OnlineEmSlamNode(Node):
             self._map_dirty = True
             self._last_ess = float("nan")
             self._resets += 1
-            self.get_logger().warning(f"estimate reset: {reason}")
+            self.get_logger().warning(f"estimate reset: {reason}" + ("; the map is kept" if keep_map else ""))
 
     # ------------------------------------------------------------------ services
     def _srv_reset(self, request, response):

@@ -158,6 +158,14 @@ class OnlineEMSlam:
         self._resample_pending, self._ess = False, float(n)
         self._anchor_time = self._input.last_stamp
 
+    def restart_time_line(self, pose, std=None) -> None:
+        """A confirmed jump of the time line (a bag played in a loop, a clock set back):
+        :meth:`set_pose` at ``pose`` and the next input starts a new time line (no held
+        control, no odometry reference, no last stamp); the map and its statistics stay."""
+        self.set_pose(pose, std)
+        self._input.reset(None)
+        self._anchor_time = None
+
     @property
     def last_stamp(self) -> float | None:
         return self._input.last_stamp
