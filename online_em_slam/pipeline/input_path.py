@@ -81,9 +81,12 @@ class InputPath:
         return math.isfinite(stamp) and not self.guard.is_jump(Input(float(stamp), kind))
 
     def watch(self, kind: int, stamp: float) -> None:
-        """A periodic stream that is not merged (odometry while control drives the motion): count its losses."""
+        """A periodic stream that is not merged (odometry while control drives the motion): count its
+        losses, and judge its next stamps against its own (a stream that runs behind the merged ones
+        under load is not a time jump)."""
         if math.isfinite(stamp):
             self.gaps.observe(kind, float(stamp))
+            self.guard.note(kind, float(stamp))
 
     def _sequence(self, item: Input, wall: float) -> list[Input]:
         self.gaps.observe(item.kind, item.stamp)

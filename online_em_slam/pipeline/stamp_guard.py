@@ -84,6 +84,11 @@ class StampGuard:
             self._accept(item)
         return Verdict(JUMPED, held, backward, abs(held[0].stamp - old))
 
+    def note(self, kind: int, stamp: float) -> None:
+        """An input of a stream that is not checked (watched only) was on the time line: later
+        inputs of that stream are judged against it."""
+        self._accept(Input(stamp, kind))
+
     def _accept(self, item: Input) -> None:
         previous = self._newest.get(item.kind)
         self._newest[item.kind] = item.stamp if previous is None else max(previous, item.stamp)
