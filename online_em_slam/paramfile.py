@@ -16,7 +16,9 @@ sections first, then the node's own, in file order) and flattens nested maps to
 the node's dotted parameter names.  :func:`config_from_params` turns the result
 into ``(SlamConfig, NodeSettings)`` through :func:`online_em_slam.ros.params.build`,
 exactly as the node does with its declared parameters (the defaults fill in the
-keys the file does not set; a bad value raises ``ParameterError``).
+keys the file does not set; a bad value raises ``ParameterError``).  Defaults,
+ranges and descriptions are the node's parameter specs, whose core part is
+derived from the field metadata of :mod:`online_em_slam.core.config`.
 """
 from __future__ import annotations
 

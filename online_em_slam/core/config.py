@@ -2,15 +2,20 @@
 
 Every field has an SI unit and a default that reproduces the seed experiment
 (GRETSI 2011: N = 100 particles, sigma_v = 0.5 m/s, sigma_psi = pi/60 rad,
-sigma_r = 0.5 m, sigma_b = pi/60 rad, rho = 0.01).  ``validate`` raises
-``ValueError`` naming the offending field and its allowed range, so the ROS
-node and the command-line tools can refuse bad values with one message.
+sigma_r = 0.5 m, sigma_b = pi/60 rad, rho = 0.01).  Each field is declared with
+:func:`param`: its description and allowed range or choices live in the field's
+metadata (:class:`ParamInfo`), the one source of the checks of ``validate``, of
+the ROS parameter descriptors and of config/online_em_slam.yaml (ros/params.py,
+:func:`core_parameters`).  ``validate`` raises ``ValueError`` naming the
+offending field and its allowed range, so the ROS node and the command-line
+tools can refuse bad values with one message; checks that are not a range
+(list lengths, one field bounding another) are code in ``validate``.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields
-from typing import Any
+from dataclasses import Field, asdict, dataclass, field, fields, replace
+from typing import Any, Iterator
 
 MOTION_MODELS = ("bicycle", "acfr", "unicycle", "odometry")
 NOISE_MODELS = ("gaussian", "mixture")
@@ -19,7 +24,67 @@ EM_ALGORITHMS = ("online", "block", "block_averaged")
 M_STEPS = ("complete", "observed")
 
 
-MIN_JITTER = 1e-9            # smallest motion jitter std (m, rad); see MotionConfig.validate
+MIN_JITTER = 1e-9            # smallest motion jitter std (m, rad); see MotionConfig.position_jitter
+INT32_MAX = 2 ** 31 - 1
+
+
+@dataclass(frozen=True)
+class ParamInfo:
+    """What a setting may be, said once: its description and its range or choices.
+
+    ``lo``/``hi`` bound a number (each entry of a tuple), excluded where
+    ``lo_open``/``hi_open``; ``choices`` bound a name (each entry of a tuple of
+    names); ``optional``: None is allowed too.  ``validate`` checks it, and the
+    ROS descriptors, config/online_em_slam.yaml and the offline params-file
+    reader are derived from it (ros/params.py).
+    """
+
+    doc: str
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    choices: tuple[str, ...] | None = None
+    optional: bool = False
+
+    def interval(self) -> str:
+        """'(0.0, 100.0]': the allowed range as in the error messages."""
+        return f"{'(' if self.lo_open else '['}{self.lo}, {self.hi}{')' if self.hi_open else ']'}"
+
+    def check(self, name: str, value: Any) -> None:
+        """ValueError naming ``name`` and the allowed range or choices if ``value`` is outside."""
+        if value is None and self.optional:
+            return
+        if self.choices is not None:
+            _check_choice(name, value, self.choices)
+        elif self.lo is not None:
+            _check_range(name, value, self.lo, self.hi, self.lo_open, self.hi_open)
+
+
+def param(default: Any, lo: float | None = None, hi: float | None = None, *, doc: str,
+          lo_open: bool = False, hi_open: bool = False, choices: tuple[str, ...] | None = None,
+          optional: bool = False) -> Any:
+    """A dataclass field with its :class:`ParamInfo` in the metadata (key ``"param"``)."""
+    info = ParamInfo(doc, lo, hi, lo_open, hi_open, choices, optional)
+    return field(default=default, metadata={"param": info})
+
+
+def param_info(f: Field) -> ParamInfo:
+    return f.metadata["param"]
+
+
+def check_fields(section: Any, prefix: str, tighter: dict[str, dict[str, Any]] | None = None) -> None:
+    """Every field of ``section`` against its ParamInfo, in field order; a tuple
+    field entry by entry (its length is checked before, by the section).
+
+    ``tighter``: field name -> ParamInfo changes, a range narrowed by another
+    field (one declared, so checked, before it), so the message names the real bound.
+    """
+    for f in fields(section):
+        info = replace(param_info(f), **(tighter or {}).get(f.name, {}))
+        value = getattr(section, f.name)
+        for entry in value if isinstance(f.default, tuple) else (value,):
+            info.check(f"{prefix}.{f.name}", entry)
 
 
 def _check_range(name: str, value: float, low: float, high: float,
@@ -57,6 +122,9 @@ def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
         raise ValueError(f"{name} = {value!r} is not one of {', '.join(choices)}")
 
 
+_STD = (0.0, 100.0)          # range of a motion noise std
+
+
 @dataclass
 class MotionConfig:
     """Vehicle motion model and its noise.
@@ -75,61 +143,57 @@ class MotionConfig:
     and counted, so one absurd but finite value cannot poison the estimate.
     """
 
-    model: str = "bicycle"
-    wheelbase: float = 4.0
-    encoder_offset: float = 0.76
-    sigma_speed: float = 0.5
-    sigma_steering: float = math.pi / 60
-    sigma_heading: float = 0.0
-    noise_reference_period: float = 0.2
-    odometry_translation_std: float = 0.01
-    odometry_rotation_std: float = 0.002
-    odometry_translation_per_meter: float = 0.05
-    odometry_rotation_per_radian: float = 0.05
-    odometry_rotation_per_meter: float = 0.01
-    position_jitter: float = 1e-3
-    heading_jitter: float = 1e-4
-    max_step: float = 1.0
-    max_prediction_interval: float = 1.0
-    max_speed: float = 50.0
-    max_yaw_rate: float = 10.0
+    model: str = param("bicycle", choices=MOTION_MODELS,
+                       doc="Motion model: bicycle, acfr, unicycle or odometry.")
+    wheelbase: float = param(4.0, 0.0, 100.0, lo_open=True,
+                             doc="Wheelbase B of the bicycle model / L of the acfr model (m).")
+    encoder_offset: float = param(0.76, -10.0, 10.0, doc="acfr model: lateral offset H of the speed encoder (m).")
+    sigma_speed: float = param(0.5, *_STD, doc="Speed noise std (m/s) over noise_reference_period.")
+    sigma_steering: float = param(math.pi / 60, *_STD, doc="Steering angle / yaw rate noise std (rad, rad/s) "
+                                  "over noise_reference_period.")
+    sigma_heading: float = param(0.0, *_STD, doc="Extra heading noise std (rad) over noise_reference_period.")
+    noise_reference_period: float = param(0.2, 0.0, 100.0, lo_open=True, doc="Period (s) the control noise "
+                                          "stds refer to; scaled as white noise for other control periods.")
+    odometry_translation_std: float = param(0.01, *_STD,
+                                            doc="Odometry model: translation noise std per step (m).")
+    odometry_rotation_std: float = param(0.002, *_STD, doc="Odometry model: rotation noise std per step (rad).")
+    odometry_translation_per_meter: float = param(0.05, *_STD, doc="Odometry model: translation noise std "
+                                                  "per metre driven.")
+    odometry_rotation_per_radian: float = param(0.05, *_STD, doc="Odometry model: rotation noise std per "
+                                                "radian turned.")
+    odometry_rotation_per_meter: float = param(0.01, *_STD, doc="Odometry model: rotation noise std (rad) "
+                                               "per metre driven.")
+    # The jitter keeps the step covariance positive definite: squared, a std of 1e-300
+    # underflows to 0 and the Cholesky factorisation of the next step fails.
+    position_jitter: float = param(1e-3, MIN_JITTER, 10.0, doc="Position jitter std (m) added per step "
+                                   "(keeps particles diverse and the step covariance positive definite).")
+    heading_jitter: float = param(1e-4, MIN_JITTER, 1.0, doc="Heading jitter std (rad) added per step.")
+    max_step: float = param(1.0, 0.0, 3600.0, lo_open=True, doc="Longest motion step integrated at once (s); "
+                            "longer gaps are clipped and counted (large_time_step_clipped).")
+    max_prediction_interval: float = param(1.0, 0.0, 3600.0, lo_open=True, doc="A filter step without "
+                                           "observations runs after this many seconds of motion only (s).")
+    max_speed: float = param(50.0, 0.0, 1e4, lo_open=True, doc="Controls or odometry increments faster than "
+                             "this (m/s) are physically impossible: dropped and counted.")
+    max_yaw_rate: float = param(10.0, 0.0, 1e3, lo_open=True, doc="Yaw rates beyond this (rad/s) are "
+                                "physically impossible: dropped and counted.")
 
     def validate(self, prefix: str = "motion") -> None:
-        _check_choice(f"{prefix}.model", self.model, MOTION_MODELS)
-        _check_range(f"{prefix}.wheelbase", self.wheelbase, 0.0, 100.0, low_open=True)
-        _check_range(f"{prefix}.encoder_offset", self.encoder_offset, -10.0, 10.0)
-        for name in ("sigma_speed", "sigma_steering", "sigma_heading",
-                     "odometry_translation_std", "odometry_rotation_std",
-                     "odometry_translation_per_meter", "odometry_rotation_per_radian",
-                     "odometry_rotation_per_meter"):
-            _check_range(f"{prefix}.{name}", getattr(self, name), 0.0, 100.0)
-        _check_range(f"{prefix}.noise_reference_period", self.noise_reference_period, 0.0, 100.0, low_open=True)
-        # The jitter keeps the step covariance positive definite: squared, a std of 1e-300
-        # underflows to 0 and the Cholesky factorisation of the next step fails.
-        _check_range(f"{prefix}.position_jitter", self.position_jitter, MIN_JITTER, 10.0)
-        _check_range(f"{prefix}.heading_jitter", self.heading_jitter, MIN_JITTER, 1.0)
-        _check_range(f"{prefix}.max_step", self.max_step, 0.0, 3600.0, low_open=True)
-        _check_range(f"{prefix}.max_prediction_interval", self.max_prediction_interval, 0.0, 3600.0, low_open=True)
-        _check_range(f"{prefix}.max_speed", self.max_speed, 0.0, 1e4, low_open=True)
-        _check_range(f"{prefix}.max_yaw_rate", self.max_yaw_rate, 0.0, 1e3, low_open=True)
+        check_fields(self, prefix)
 
 
 @dataclass
 class SensorConfig:
     """Range-bearing sensor mounted at (offset_x, offset_y, offset_yaw) in the base frame."""
 
-    offset_x: float = 0.0
-    offset_y: float = 0.0
-    offset_yaw: float = 0.0
-    max_range: float = 30.0
-    min_range: float = 0.0
+    offset_x: float = param(0.0, -100.0, 100.0, doc="Sensor mount x in the base frame (m).")
+    offset_y: float = param(0.0, -100.0, 100.0, doc="Sensor mount y in the base frame (m).")
+    offset_yaw: float = param(0.0, -math.pi, math.pi, doc="Sensor mount yaw in the base frame (rad).")
+    max_range: float = param(30.0, 0.0, 1e4, lo_open=True, doc="Observations farther than this are dropped (m).")
+    min_range: float = param(0.0, 0.0, 1e4, doc="Observations nearer than this are dropped (m), "
+                             "<= sensor.max_range.")
 
     def validate(self, prefix: str = "sensor") -> None:
-        for name in ("offset_x", "offset_y"):
-            _check_range(f"{prefix}.{name}", getattr(self, name), -100.0, 100.0)
-        _check_range(f"{prefix}.offset_yaw", self.offset_yaw, -math.pi, math.pi)
-        _check_range(f"{prefix}.max_range", self.max_range, 0.0, 1e4, low_open=True)
-        _check_range(f"{prefix}.min_range", self.min_range, 0.0, self.max_range)
+        check_fields(self, prefix, {"min_range": {"hi": self.max_range}})
 
 
 @dataclass
@@ -142,31 +206,29 @@ class ObservationNoiseConfig:
     sigma_r(range) = sigma_range + range_growth * range (thesis 003: context-dependent noise).
     """
 
-    model: str = "gaussian"
-    sigma_range: float = 0.5
-    sigma_bearing: float = math.pi / 60
-    rho: float = 0.01
-    mixture_weights: tuple[float, ...] = (0.8, 0.2)
-    mixture_scales: tuple[float, ...] = (1.0, 5.0)
-    range_growth: float = 0.0
+    model: str = param("gaussian", choices=NOISE_MODELS, doc="Observation noise: gaussian N(0,R) or mixture "
+                       "sum_c w_c N(0, s_c R) (outlier-robust).")
+    sigma_range: float = param(0.5, 0.0, 100.0, lo_open=True, doc="Range noise std sigma_r (m).")
+    sigma_bearing: float = param(math.pi / 60, 0.0, math.pi, lo_open=True, doc="Bearing noise std sigma_b (rad).")
+    rho: float = param(0.01, doc="Range-bearing covariance term of R (m rad); |rho| < 0.999 sigma_range "
+                       "sigma_bearing.")
+    # Each entry checked on its own: NaN compares False with everything, so a NaN weight
+    # would pass the sum test of validate and give degenerate particle weights.
+    mixture_weights: tuple[float, ...] = param((0.8, 0.2), 0.0, 1.0, doc="Mixture component weights, "
+                                               "summing to 1.")
+    mixture_scales: tuple[float, ...] = param((1.0, 5.0), 0.0, 1e6, lo_open=True, doc="Mixture component "
+                                              "covariance scales, as many as weights.")
+    range_growth: float = param(0.0, 0.0, 1.0, doc="Range std grows by this times the range: "
+                                "sigma_r + growth * range.")
 
     def validate(self, prefix: str = "noise") -> None:
-        _check_choice(f"{prefix}.model", self.model, NOISE_MODELS)
-        _check_range(f"{prefix}.sigma_range", self.sigma_range, 0.0, 100.0, low_open=True)
-        _check_range(f"{prefix}.sigma_bearing", self.sigma_bearing, 0.0, math.pi, low_open=True)
-        limit = 0.999 * self.sigma_range * self.sigma_bearing
-        _check_range(f"{prefix}.rho", self.rho, -limit, limit)
-        _check_range(f"{prefix}.range_growth", self.range_growth, 0.0, 1.0)
         weights = _check_length(f"{prefix}.mixture_weights", self.mixture_weights)
         scales = _check_length(f"{prefix}.mixture_scales", self.mixture_scales)
         if len(weights) != len(scales):
             raise ValueError(f"{prefix}.mixture_weights and {prefix}.mixture_scales must have the same, non-zero length")
-        # Each entry on its own: NaN compares False with everything, so a NaN weight
-        # would pass the sum and sign tests below and give degenerate particle weights.
-        for weight in weights:
-            _check_range(f"{prefix}.mixture_weights", weight, 0.0, 1.0)
-        for scale in scales:
-            _check_range(f"{prefix}.mixture_scales", scale, 0.0, 1e6, low_open=True)
+        check_fields(self, prefix)
+        limit = 0.999 * self.sigma_range * self.sigma_bearing
+        _check_range(f"{prefix}.rho", self.rho, -limit, limit)
         if abs(math.fsum(float(w) for w in weights) - 1.0) > 1e-6:
             raise ValueError(f"{prefix}.mixture_weights = {self.mixture_weights} must be non-negative and sum to 1")
 
@@ -175,20 +237,18 @@ class ObservationNoiseConfig:
 class FilterConfig:
     """Particle filter and the smoother that carries the E-step statistics."""
 
-    num_particles: int = 100
-    resample_threshold: float = 0.5
-    smoother: str = "forward"
-    paris_draws: int = 2
-    seed: int | None = 0
-    initial_pose_std: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    num_particles: int = param(100, 1, 100000, doc="Number of particles N.")
+    resample_threshold: float = param(0.5, 0.0, 1.0, doc="Resample when ESS < threshold * N.")
+    smoother: str = param("forward", choices=SMOOTHERS,
+                          doc="Sufficient-statistics smoother: forward, paris or ancestry.")
+    paris_draws: int = param(2, 1, 100, doc="PaRIS backward draws per particle.")
+    seed: int | None = param(0, 0, INT32_MAX, optional=True, doc="Random seed; None draws a fresh seed.")
+    initial_pose_std: tuple[float, float, float] = param((0.0, 0.0, 0.0), 0.0, 1e3, doc="Std of the initial "
+                                                         "particle cloud: exactly 3 values (x m, y m, yaw rad).")
 
     def validate(self, prefix: str = "filter") -> None:
-        _check_range(f"{prefix}.num_particles", self.num_particles, 1, 100000)
-        _check_range(f"{prefix}.resample_threshold", self.resample_threshold, 0.0, 1.0)
-        _check_choice(f"{prefix}.smoother", self.smoother, SMOOTHERS)
-        _check_range(f"{prefix}.paris_draws", self.paris_draws, 1, 100)
-        for std in _check_length(f"{prefix}.initial_pose_std", self.initial_pose_std, 3, " (x, y, yaw)"):
-            _check_range(f"{prefix}.initial_pose_std", std, 0.0, 1e3)
+        _check_length(f"{prefix}.initial_pose_std", self.initial_pose_std, 3, " (x, y, yaw)")
+        check_fields(self, prefix)
 
 
 @dataclass
@@ -215,26 +275,27 @@ class EMConfig:
                     estimate for its next factors.
     """
 
-    algorithm: str = "online"
-    step_size_exponent: float = 0.8
-    min_updates_before_mstep: int = 1
-    block_initial_length: int = 20
-    block_growth: float = 1.1
-    inflate_with_map_uncertainty: bool = False
-    m_step: str = "observed"
-    segment_length: int = 10
-    relinearize_threshold: float = 0.5
-    first_estimate_jacobians: bool = True
+    algorithm: str = param("online", choices=EM_ALGORITHMS, doc="online (stochastic approximation), block or "
+                           "block_averaged (Block Online EM).")
+    step_size_exponent: float = param(0.8, 0.5, 1.0, lo_open=True,
+                                      doc="Online EM step size gamma_n = n^-exponent.")
+    min_updates_before_mstep: int = param(1, 1, 1000, doc="EM updates of a landmark before its M-step.")
+    block_initial_length: int = param(20, 1, 100000, doc="Block Online EM: first block length (steps).")
+    block_growth: float = param(1.1, 0.0, 3.0, doc="Block Online EM: block k has length initial * k^growth.")
+    inflate_with_map_uncertainty: bool = param(False, doc="Add the landmark covariance to the innovation "
+                                               "covariance.")
+    m_step: str = param("observed", choices=M_STEPS, doc="complete (seed: A^-1 b per landmark) or observed "
+                        "(Newton step with the observed information: poses integrated out of the joint system).")
+    segment_length: int = param(10, 1, 100000, doc="Observed M-step: filter steps per segment whose poses are "
+                                "integrated out.")
+    relinearize_threshold: float = param(0.5, 0.0, 1e3, lo_open=True, doc="Observed M-step: a landmark farther "
+                                         "than this (m) from its first estimate gets new Jacobians for its "
+                                         "next factors.")
+    first_estimate_jacobians: bool = param(True, doc="Observed M-step: Jacobians at each variable's first "
+                                           "estimate, so the map's orientation gains no false information (FEJ).")
 
     def validate(self, prefix: str = "em") -> None:
-        _check_choice(f"{prefix}.algorithm", self.algorithm, EM_ALGORITHMS)
-        _check_range(f"{prefix}.step_size_exponent", self.step_size_exponent, 0.5, 1.0, low_open=True)
-        _check_range(f"{prefix}.min_updates_before_mstep", self.min_updates_before_mstep, 1, 1000)
-        _check_range(f"{prefix}.block_initial_length", self.block_initial_length, 1, 100000)
-        _check_range(f"{prefix}.block_growth", self.block_growth, 0.0, 3.0)
-        _check_choice(f"{prefix}.m_step", self.m_step, M_STEPS)
-        _check_range(f"{prefix}.segment_length", self.segment_length, 1, 100000)
-        _check_range(f"{prefix}.relinearize_threshold", self.relinearize_threshold, 0.0, 1e3, low_open=True)
+        check_fields(self, prefix)
 
 
 @dataclass
@@ -259,29 +320,28 @@ class AssociationConfig:
                                time one message can cost.
     """
 
-    gate_probability: float = 0.99
-    new_landmark_probability: float = 0.9999
-    confirm_observations: int = 3
-    tentative_timeout: int = 20
-    min_observations_for_weighting: int = 2
-    max_landmarks: int = 5000
-    gate_position_std: float = 0.0
-    gate_heading_std: float = 0.0
-    max_observations_per_scan: int = 1000
+    # Both gates are chi-square quantiles: a probability of 1 is an infinite gate.
+    gate_probability: float = param(0.99, 0.0, 1.0, lo_open=True, hi_open=True,
+                                    doc="Chi-square(2) probability of the association gate.")
+    new_landmark_probability: float = param(0.9999, 0.0, 1.0, lo_open=True, hi_open=True, doc="Outside this "
+                                            "wider gate of every landmark an unknown-id observation creates a "
+                                            "landmark; >= gate_probability.")
+    confirm_observations: int = param(3, 1, 1000, doc="Observations that confirm a tentative landmark.")
+    tentative_timeout: int = param(20, 1, 1000000, doc="Unconfirmed landmarks older than this many steps are "
+                                   "pruned.")
+    min_observations_for_weighting: int = param(2, 1, 1000, doc="Landmarks seen fewer times do not weight "
+                                                "particles.")
+    max_landmarks: int = param(5000, 1, 1000000, doc="Map size limit; further new landmarks are dropped "
+                               "(map_full).")
+    gate_position_std: float = param(0.0, 0.0, 100.0, doc="Extra pose position std (m) in the association gate "
+                                     "only: drift accumulated before a loop closure, so revisited landmarks "
+                                     "are re-associated instead of duplicated.")
+    gate_heading_std: float = param(0.0, 0.0, 3.2, doc="Extra heading std (rad) in the association gate only.")
+    max_observations_per_scan: int = param(1000, 1, 100000, doc="Usable points of one scan beyond this are "
+                                           "dropped (too_many_observations).")
 
     def validate(self, prefix: str = "association") -> None:
-        # Both gates are chi-square quantiles: a probability of 1 is an infinite gate.
-        _check_range(f"{prefix}.gate_probability", self.gate_probability, 0.0, 1.0,
-                     low_open=True, high_open=True)
-        _check_range(f"{prefix}.new_landmark_probability", self.new_landmark_probability,
-                     self.gate_probability, 1.0, high_open=True)
-        _check_range(f"{prefix}.confirm_observations", self.confirm_observations, 1, 1000)
-        _check_range(f"{prefix}.tentative_timeout", self.tentative_timeout, 1, 1000000)
-        _check_range(f"{prefix}.min_observations_for_weighting", self.min_observations_for_weighting, 1, 1000)
-        _check_range(f"{prefix}.max_landmarks", self.max_landmarks, 1, 1000000)
-        _check_range(f"{prefix}.gate_position_std", self.gate_position_std, 0.0, 100.0)
-        _check_range(f"{prefix}.gate_heading_std", self.gate_heading_std, 0.0, 3.2)
-        _check_range(f"{prefix}.max_observations_per_scan", self.max_observations_per_scan, 1, 100000)
+        check_fields(self, prefix, {"new_landmark_probability": {"lo": self.gate_probability, "lo_open": False}})
 
 
 LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "range_growth", "motion_scale")
@@ -315,49 +375,56 @@ class NoiseLearningConfig:
         first observation and its residual says little about R.
     *_limits: (floor, ceiling) of each learned value; correlation_limit bounds
         |rho| / (sigma_range sigma_bearing); mixture_weight_limits bound each
-        outlier component's weight.
+        outlier component's weight.  The limits' ranges keep the learned values
+        inside what ObservationNoiseConfig / MotionConfig accept.
     """
 
-    enabled: bool = False
-    learn: tuple[str, ...] = ("range", "bearing", "correlation", "mixture", "motion_scale")
-    step_size_exponent: float = 0.7
-    motion_step_size_exponent: float = 1.0
-    warmup_observations: int = 200
-    warmup_steps: int = 50
-    motion_window: int = 10
-    min_landmark_observations: int = 5
-    sigma_range_limits: tuple[float, float] = (0.01, 10.0)
-    sigma_bearing_limits: tuple[float, float] = (0.001, 0.5)
-    range_growth_limits: tuple[float, float] = (0.0, 0.5)
-    correlation_limit: float = 0.9
-    mixture_weight_limits: tuple[float, float] = (0.001, 0.5)
-    mixture_scale_limits: tuple[float, float] = (2.0, 1000.0)
-    motion_scale_limits: tuple[float, float] = (0.01, 100.0)
+    enabled: bool = param(False, doc="Learn the noise online by EM (noise_learning.learn); the learned values "
+                          "are used once warmed up and shown on /diagnostics.")
+    learn: tuple[str, ...] = param(("range", "bearing", "correlation", "mixture", "motion_scale"),
+                                   choices=LEARNABLE_NOISE, doc="Quantities learned: any of range, bearing, "
+                                   "correlation, mixture (with noise.model mixture), range_growth, motion_scale. "
+                                   "To learn nothing set enabled false.")
+    step_size_exponent: float = param(0.7, 0.5, 1.0, lo_open=True, doc="Step size gamma_n = n^-exponent of the "
+                                      "noise statistics.")
+    motion_step_size_exponent: float = param(1.0, 0.5, 1.0, lo_open=True, doc="Step size exponent of the motion "
+                                             "scale's statistic; 1 averages it all (it is valid under any scale).")
+    warmup_observations: int = param(200, 0, 10 ** 9, doc="Observations before the learned observation noise "
+                                     "is used.")
+    warmup_steps: int = param(50, 0, 10 ** 9, doc="Scans (motion statistics) before the learned motion scale "
+                              "is used.")
+    motion_window: int = param(10, 1, 1000, doc="Filter steps over which the pose is predicted open loop for "
+                               "the motion scale's statistic.")
+    min_landmark_observations: int = param(5, 1, 10 ** 6, doc="Observations of landmarks seen fewer times (this "
+                                           "one included) do not inform R.")
+    sigma_range_limits: tuple[float, float] = param((0.01, 10.0), 0.0, 100.0, lo_open=True, doc="Floor and "
+                                                    "ceiling of the learned sigma_range (m), floor <= ceiling.")
+    sigma_bearing_limits: tuple[float, float] = param((0.001, 0.5), 0.0, math.pi, lo_open=True, doc="Floor and "
+                                                      "ceiling of the learned sigma_bearing (rad), floor <= ceiling.")
+    range_growth_limits: tuple[float, float] = param((0.0, 0.5), 0.0, 1.0, doc="Floor and ceiling of the "
+                                                     "learned range_growth, floor <= ceiling.")
+    correlation_limit: float = param(0.9, 0.0, 0.99, doc="Bound on |rho| / (sigma_range sigma_bearing) when "
+                                     "learned.")
+    mixture_weight_limits: tuple[float, float] = param((0.001, 0.5), 0.0, 0.5, lo_open=True, doc="Floor and "
+                                                       "ceiling of each learned outlier weight, floor <= ceiling.")
+    mixture_scale_limits: tuple[float, float] = param((2.0, 1000.0), 1.0, 1e6, lo_open=True, doc="Floor and "
+                                                      "ceiling of each learned outlier scale, floor <= ceiling.")
+    motion_scale_limits: tuple[float, float] = param((0.01, 100.0), 0.0, 1e4, lo_open=True, doc="Floor and "
+                                                     "ceiling of the learned motion noise scale (factor on the "
+                                                     "motion covariance), floor <= ceiling.")
+
+    _LIMITS = ("sigma_range_limits", "sigma_bearing_limits", "range_growth_limits", "mixture_weight_limits",
+               "mixture_scale_limits", "motion_scale_limits")
 
     def validate(self, prefix: str = "noise_learning") -> None:
         if isinstance(self.learn, str):
             raise ValueError(f"{prefix}.learn = {self.learn!r} must be a list of names of {', '.join(LEARNABLE_NOISE)}")
-        for name in tuple(self.learn):
-            _check_choice(f"{prefix}.learn", name, LEARNABLE_NOISE)
-        _check_range(f"{prefix}.step_size_exponent", self.step_size_exponent, 0.5, 1.0, low_open=True)
-        _check_range(f"{prefix}.motion_step_size_exponent", self.motion_step_size_exponent, 0.5, 1.0,
-                     low_open=True)
-        _check_range(f"{prefix}.warmup_observations", self.warmup_observations, 0, 10 ** 9)
-        _check_range(f"{prefix}.warmup_steps", self.warmup_steps, 0, 10 ** 9)
-        _check_range(f"{prefix}.motion_window", self.motion_window, 1, 1000)
-        _check_range(f"{prefix}.min_landmark_observations", self.min_landmark_observations, 1, 10 ** 6)
-        _check_range(f"{prefix}.correlation_limit", self.correlation_limit, 0.0, 0.99)
-        # (name, lowest floor, highest ceiling, floor may be 0): the ceilings keep the
-        # learned values inside what ObservationNoiseConfig / MotionConfig accept.
-        for name, low, high, low_open in (("sigma_range_limits", 0.0, 100.0, True),
-                                          ("sigma_bearing_limits", 0.0, math.pi, True),
-                                          ("range_growth_limits", 0.0, 1.0, False),
-                                          ("mixture_weight_limits", 0.0, 0.5, True),
-                                          ("mixture_scale_limits", 1.0, 1e6, True),
-                                          ("motion_scale_limits", 0.0, 1e4, True)):
-            floor, ceiling = _check_length(f"{prefix}.{name}", getattr(self, name), 2, " (floor, ceiling)")
-            _check_range(f"{prefix}.{name}", floor, low, high, low_open=low_open)
-            _check_range(f"{prefix}.{name}", ceiling, float(floor), high)
+        for name in self._LIMITS:
+            _check_length(f"{prefix}.{name}", getattr(self, name), 2, " (floor, ceiling)")
+        check_fields(self, prefix)
+        for name in self._LIMITS:          # each floor <= its ceiling
+            floor, ceiling = getattr(self, name)
+            _check_range(f"{prefix}.{name}", ceiling, float(floor), param_info(self.__dataclass_fields__[name]).hi)
 
 
 @dataclass
@@ -392,6 +459,14 @@ class SlamConfig:
         if data:
             raise ValueError(f"unknown configuration section(s): {', '.join(sorted(data))}")
         return cls(**kwargs).validate()
+
+
+def core_parameters() -> Iterator[tuple[str, Any, ParamInfo]]:
+    """(dotted name, default, ParamInfo) of every core setting, in field order:
+    what ros/params.py turns into parameter specs and descriptors."""
+    for section in fields(SlamConfig):
+        for f in fields(section.default_factory):  # type: ignore[arg-type]
+            yield f"{section.name}.{f.name}", f.default, param_info(f)
 
 
 def _section_from_dict(sub_cls, section: dict[str, Any], name: str):

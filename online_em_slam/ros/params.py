@@ -4,11 +4,15 @@ Core settings keep their dotted dataclass path as a flat parameter name
 (``motion.model``, ``filter.num_particles``, ``noise.sigma_range`` ...), so the
 YAML of the command-line tools and the node's parameter file read alike.
 Every parameter gets a :class:`ParameterDescriptor` with a description and,
-for numbers, the allowed range.  Values are checked twice: by rclpy against
-the descriptor range (inclusive bounds), then as a whole by
-:meth:`SlamConfig.validate` (open bounds and cross-field rules such as
-``|rho| < sigma_range * sigma_bearing``) and the node-level rules below, so a
-refused value always comes with a message naming the parameter and its range.
+for numbers, the allowed range.  The core parameters' specs are derived from
+the field metadata of core/config.py (:func:`core_specs`; description, range,
+open bounds, choices written once there); the node's own are ``NODE_SPECS``,
+and :class:`NodeSettings` is read from them by name.  Values are checked twice:
+by rclpy against the descriptor range (inclusive bounds), then as a whole by
+:meth:`SlamConfig.validate` (the same ranges with their open bounds, and
+cross-field rules such as ``|rho| < sigma_range * sigma_bearing``) and the
+node-level rules below, so a refused value always comes with a message naming
+the parameter and its range.
 
 :func:`build` is pure (no rclpy): it turns a ``{name: value}`` dict into a
 :class:`SlamConfig` and :class:`NodeSettings`, raising :class:`ParameterError`.
@@ -16,20 +20,19 @@ refused value always comes with a message naming the parameter and its range.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:   # rcl_interfaces is imported where it is used, so build() works without ROS
     from rcl_interfaces.msg import ParameterDescriptor
 
-from ..core.config import (EM_ALGORITHMS, M_STEPS, MOTION_MODELS, NOISE_MODELS, SMOOTHERS, SlamConfig)
+from ..core.config import MOTION_MODELS, SlamConfig, core_parameters
 
 AUTO_MODEL = "auto"
 MOTION_SOURCES = ("odom", "control")
 CONTROL_ANGULAR = ("steering", "yaw_rate")
 RELIABILITIES = ("reliable", "best_effort")
 STEERING_MODELS = ("bicycle", "acfr")
-INT32_MAX = 2 ** 31 - 1
 
 
 class ParameterError(ValueError):
@@ -45,132 +48,18 @@ class ParamSpec:
     high: float | None = None
     choices: tuple[str, ...] | None = None
     read_only: bool = False
+    low_open: bool = False          # low itself is refused (by SlamConfig.validate; rclpy ranges are inclusive)
+    high_open: bool = False
 
 
-# Core settings: description and (low, high) descriptor range (inclusive; open
-# bounds and cross-field rules are enforced by SlamConfig.validate()).
-_CORE = {
-    "motion.model": ("Motion model: auto (from motion_source and control_angular: odom -> odometry, "
-                     "control+steering -> bicycle, control+yaw_rate -> unicycle), bicycle, acfr, "
-                     "unicycle or odometry.", None),
-    "motion.wheelbase": ("Wheelbase B of the bicycle model / L of the acfr model (m), > 0.", (0.0, 100.0)),
-    "motion.encoder_offset": ("acfr model: lateral offset H of the speed encoder (m).", (-10.0, 10.0)),
-    "motion.sigma_speed": ("Speed noise std (m/s) over noise_reference_period.", (0.0, 100.0)),
-    "motion.sigma_steering": ("Steering angle / yaw rate noise std (rad, rad/s) over noise_reference_period.",
-                              (0.0, 100.0)),
-    "motion.sigma_heading": ("Extra heading noise std (rad) over noise_reference_period.", (0.0, 100.0)),
-    "motion.noise_reference_period": ("Period (s) the control noise stds refer to, > 0; scaled as white "
-                                      "noise for other control periods.", (0.0, 100.0)),
-    "motion.odometry_translation_std": ("Odometry model: translation noise std per step (m).", (0.0, 100.0)),
-    "motion.odometry_rotation_std": ("Odometry model: rotation noise std per step (rad).", (0.0, 100.0)),
-    "motion.odometry_translation_per_meter": ("Odometry model: translation noise std per metre driven.",
-                                              (0.0, 100.0)),
-    "motion.odometry_rotation_per_radian": ("Odometry model: rotation noise std per radian turned.",
-                                            (0.0, 100.0)),
-    "motion.odometry_rotation_per_meter": ("Odometry model: rotation noise std (rad) per metre driven.",
-                                           (0.0, 100.0)),
-    "motion.position_jitter": ("Position jitter std (m) added per step, >= 1e-9 (keeps particles diverse "
-                               "and the step covariance positive definite).", (1e-9, 10.0)),
-    "motion.heading_jitter": ("Heading jitter std (rad) added per step, >= 1e-9.", (1e-9, 1.0)),
-    "motion.max_step": ("Longest motion step integrated at once (s), > 0; longer gaps are clipped "
-                        "and counted (large_time_step_clipped).", (0.0, 3600.0)),
-    "motion.max_prediction_interval": ("A filter step without observations runs after this many seconds "
-                                       "of motion only (s), > 0.", (0.0, 3600.0)),
-    "sensor.offset_x": ("Sensor mount x in the base frame (m).", (-100.0, 100.0)),
-    "sensor.offset_y": ("Sensor mount y in the base frame (m).", (-100.0, 100.0)),
-    "sensor.offset_yaw": ("Sensor mount yaw in the base frame (rad).", (-math.pi, math.pi)),
-    "sensor.max_range": ("Observations farther than this are dropped (m), > 0.", (0.0, 1e4)),
-    "sensor.min_range": ("Observations nearer than this are dropped (m), <= sensor.max_range.", (0.0, 1e4)),
-    "noise.model": ("Observation noise: gaussian N(0,R) or mixture sum_c w_c N(0, s_c R) (outlier-robust).",
-                    None),
-    "noise.sigma_range": ("Range noise std sigma_r (m), > 0.", (0.0, 100.0)),
-    "noise.sigma_bearing": ("Bearing noise std sigma_b (rad), > 0.", (0.0, math.pi)),
-    "noise.rho": ("Range-bearing covariance term of R (m rad); |rho| < 0.999 sigma_range sigma_bearing.", None),
-    "noise.mixture_weights": ("Mixture component weights (non-negative, sum 1).", None),
-    "noise.mixture_scales": ("Mixture component covariance scales (positive, as many as weights).", None),
-    "noise.range_growth": ("Range std grows by this times the range: sigma_r + growth * range.", (0.0, 1.0)),
-    "filter.num_particles": ("Number of particles N.", (1, 100000)),
-    "filter.resample_threshold": ("Resample when ESS < threshold * N.", (0.0, 1.0)),
-    "filter.smoother": ("Sufficient-statistics smoother: forward, paris or ancestry.", None),
-    "filter.paris_draws": ("PaRIS backward draws per particle.", (1, 100)),
-    "filter.seed": ("Random seed; -1 draws a fresh seed.", (-1, INT32_MAX)),
-    "filter.initial_pose_std": ("Std of the initial particle cloud: exactly 3 values (x m, y m, yaw rad).",
-                                None),
-    "em.algorithm": ("online (stochastic approximation), block or block_averaged (Block Online EM).", None),
-    "em.step_size_exponent": ("Online EM step size gamma_n = n^-exponent, in (0.5, 1].", (0.5, 1.0)),
-    "em.min_updates_before_mstep": ("EM updates of a landmark before its M-step.", (1, 1000)),
-    "em.block_initial_length": ("Block Online EM: first block length (steps).", (1, 100000)),
-    "em.block_growth": ("Block Online EM: block k has length initial * k^growth.", (0.0, 3.0)),
-    "em.inflate_with_map_uncertainty": ("Add the landmark covariance to the innovation covariance.", None),
-    "em.m_step": ("complete (seed: A^-1 b per landmark) or observed (Newton step with the observed "
-                  "information: poses integrated out of the joint system).", None),
-    "em.segment_length": ("Observed M-step: filter steps per segment whose poses are integrated out.",
-                          (1, 100000)),
-    "em.relinearize_threshold": ("Observed M-step: a landmark farther than this (m) from its first "
-                                 "estimate gets new Jacobians for its next factors.", (0.0, 1000.0)),
-    "em.first_estimate_jacobians": ("Observed M-step: Jacobians at each variable's first estimate, so the "
-                                    "map's orientation gains no false information (FEJ).", None),
-    "association.gate_probability": ("Chi-square(2) probability of the association gate, in (0, 1).",
-                                     (0.0, 1.0)),
-    "association.new_landmark_probability": ("Outside this wider gate of every landmark an unknown-id "
-                                             "observation creates a landmark; in [gate_probability, 1).",
-                                             (0.0, 1.0)),
-    "association.confirm_observations": ("Observations that confirm a tentative landmark.", (1, 1000)),
-    "association.tentative_timeout": ("Unconfirmed landmarks older than this many steps are pruned.",
-                                      (1, 1000000)),
-    "association.min_observations_for_weighting": ("Landmarks seen fewer times do not weight particles.",
-                                                   (1, 1000)),
-    "association.max_landmarks": ("Map size limit; further new landmarks are dropped (map_full).",
-                                  (1, 1000000)),
-    "association.gate_position_std": ("Extra pose position std (m) in the association gate only: drift "
-                                      "accumulated before a loop closure, so revisited landmarks are "
-                                      "re-associated instead of duplicated.", (0.0, 100.0)),
-    "association.gate_heading_std": ("Extra heading std (rad) in the association gate only.", (0.0, 3.2)),
-    "association.max_observations_per_scan": ("Usable points of one scan beyond this are dropped "
-                                              "(too_many_observations).", (1, 100000)),
-    "motion.max_speed": ("Controls or odometry increments faster than this (m/s) are physically "
-                         "impossible: dropped and counted.", (0.0, 1e4)),
-    "motion.max_yaw_rate": ("Yaw rates beyond this (rad/s) are physically impossible: dropped and "
-                            "counted.", (0.0, 1e3)),
-    "noise_learning.enabled": ("Learn the noise online by EM (noise_learning.learn); the learned values "
-                               "are used once warmed up and shown on /diagnostics.", None),
-    "noise_learning.learn": ("Quantities learned: any of range, bearing, correlation, mixture (with "
-                             "noise.model mixture), range_growth, motion_scale. To learn nothing set "
-                             "enabled false.", None),
-    "noise_learning.step_size_exponent": ("Step size gamma_n = n^-exponent of the noise statistics, in "
-                                          "(0.5, 1].", (0.5, 1.0)),
-    "noise_learning.motion_step_size_exponent": ("Step size exponent of the motion scale's statistic, in "
-                                                 "(0.5, 1]; 1 averages it all (it is valid under any scale).",
-                                                 (0.5, 1.0)),
-    "noise_learning.warmup_observations": ("Observations before the learned observation noise is used.",
-                                           (0, 1000000000)),
-    "noise_learning.warmup_steps": ("Scans (motion statistics) before the learned motion scale is used.",
-                                    (0, 1000000000)),
-    "noise_learning.motion_window": ("Filter steps over which the pose is predicted open loop for the motion "
-                                     "scale's statistic.", (1, 1000)),
-    "noise_learning.min_landmark_observations": ("Observations of landmarks seen fewer times (this one "
-                                                 "included) do not inform R.", (1, 1000000)),
-    "noise_learning.sigma_range_limits": ("Floor and ceiling of the learned sigma_range (m), 0 < floor <= "
-                                          "ceiling <= 100.", None),
-    "noise_learning.sigma_bearing_limits": ("Floor and ceiling of the learned sigma_bearing (rad), 0 < floor "
-                                            "<= ceiling <= pi.", None),
-    "noise_learning.range_growth_limits": ("Floor and ceiling of the learned range_growth, in [0, 1].", None),
-    "noise_learning.correlation_limit": ("Bound on |rho| / (sigma_range sigma_bearing) when learned.",
-                                         (0.0, 0.99)),
-    "noise_learning.mixture_weight_limits": ("Floor and ceiling of each learned outlier weight, in (0, 0.5].",
-                                             None),
-    "noise_learning.mixture_scale_limits": ("Floor and ceiling of each learned outlier scale, 1 < floor <= "
-                                            "ceiling <= 1e6.", None),
-    "noise_learning.motion_scale_limits": ("Floor and ceiling of the learned motion noise scale (factor on "
-                                           "the motion covariance), 0 < floor <= ceiling <= 1e4.", None),
-}
-
-_CHOICES = {
-    "motion.model": (AUTO_MODEL,) + MOTION_MODELS,
-    "noise.model": NOISE_MODELS,
-    "filter.smoother": SMOOTHERS,
-    "em.algorithm": EM_ALGORITHMS,
-    "em.m_step": M_STEPS,
+# Core settings whose parameter differs from the core's value: the node resolves
+# motion.model "auto" from motion_source and control_angular, and -1 is filter.seed None.
+_ROS_ENCODING = {
+    "motion.model": {"default": AUTO_MODEL, "choices": (AUTO_MODEL,) + MOTION_MODELS,
+                     "description": "Motion model: auto (from motion_source and control_angular: odom -> "
+                                    "odometry, control+steering -> bicycle, control+yaw_rate -> unicycle), "
+                                    "bicycle, acfr, unicycle or odometry."},
+    "filter.seed": {"low": -1, "description": "Random seed; -1 draws a fresh seed."},
 }
 
 # Node settings: (name, default, description, range or choices, read_only).
@@ -265,33 +154,24 @@ class NodeSettings:
     marker_sigma: float = 2.0
 
 
-def _core_defaults() -> dict[str, Any]:
-    defaults = {}
-    config = SlamConfig()
-    for section in fields(config):
-        sub = getattr(config, section.name)
-        for f in fields(sub):
-            value = getattr(sub, f.name)
-            name = f"{section.name}.{f.name}"
-            if name == "motion.model":
-                value = AUTO_MODEL
-            elif name == "filter.seed":
-                value = -1 if value is None else int(value)
-            elif isinstance(value, tuple):
-                # Lists of names (noise_learning.learn) stay strings; numbers are doubles.
-                value = [v if isinstance(v, str) else float(v) for v in value]
-            defaults[name] = value
-    return defaults
+def _parameter_value(value: Any) -> Any:
+    """A core default as a parameter value: tuples become lists, of names (noise_learning.learn)
+    or of doubles; None (filter.seed, optional) is -1."""
+    if value is None:
+        return -1
+    if isinstance(value, tuple):
+        return [v if isinstance(v, str) else float(v) for v in value]
+    return value
 
 
 def core_specs() -> list[ParamSpec]:
-    """One spec per field of SlamConfig (fields unknown to the table still get a parameter)."""
+    """One spec per field of SlamConfig, from the field's metadata (core/config.py ``param``):
+    description, range (open bounds included) and choices are written there once."""
     specs = []
-    for name, default in _core_defaults().items():
-        description, bounds = _CORE.get(name, (f"Core setting {name} (see online_em_slam/core/config.py).",
-                                               None))
-        low, high = bounds if bounds else (None, None)
-        specs.append(ParamSpec(name, default, description, low, high, _CHOICES.get(name)))
+    for name, default, info in core_parameters():
+        spec = ParamSpec(name, _parameter_value(default), info.doc, info.lo, info.hi, info.choices,
+                         low_open=info.lo_open, high_open=info.hi_open)
+        specs.append(replace(spec, **_ROS_ENCODING.get(name, {})))
     return specs
 
 
@@ -299,11 +179,42 @@ def all_specs() -> list[ParamSpec]:
     return core_specs() + list(NODE_SPECS)
 
 
+def bound_text(value: float) -> str:
+    """Whole numbers in full below 1e7 (1000000, not 1e+06), others as %g."""
+    if float(value).is_integer() and abs(value) < 1e7:
+        return str(int(value))
+    return f"{value:g}"
+
+
+def range_text(spec: ParamSpec) -> str | None:
+    """'(0, 100]' (open bounds as SlamConfig.validate applies them), or None without a range."""
+    if spec.low is None or spec.high is None:
+        return None
+    return (f"{'(' if spec.low_open else '['}{bound_text(spec.low)}, {bound_text(spec.high)}"
+            f"{')' if spec.high_open else ']'}")
+
+
+def constraint_text(spec: ParamSpec) -> str | None:
+    """The descriptor's additional_constraints: 'in (0, 100]', 'each entry in [0, 1000]', 'one of: ...'."""
+    each = "each entry " if isinstance(spec.default, list) else ""
+    if spec.choices:
+        return f"{each}one of: " + ", ".join(spec.choices)
+    interval = range_text(spec)
+    if interval is None:
+        return None
+    return f"{each}{'integer ' if type(spec.default) is int else ''}in {interval}"
+
+
 def descriptor(spec: ParamSpec) -> ParameterDescriptor:
-    """ParameterDescriptor with type, description, range and choices of ``spec``."""
+    """ParameterDescriptor with type, description, range and choices of ``spec``.
+
+    rclpy enforces the (inclusive) range of a number; open bounds, entries of
+    arrays and choices are stated in additional_constraints and enforced by build().
+    """
     from rcl_interfaces.msg import (FloatingPointRange, IntegerRange,  # noqa: PLC0415
                                     ParameterDescriptor, ParameterType)
     d = ParameterDescriptor(name=spec.name, description=spec.description, read_only=spec.read_only)
+    d.additional_constraints = constraint_text(spec) or ""
     value = spec.default
     if isinstance(value, bool):
         d.type = ParameterType.PARAMETER_BOOL
@@ -311,17 +222,13 @@ def descriptor(spec: ParamSpec) -> ParameterDescriptor:
         d.type = ParameterType.PARAMETER_INTEGER
         if spec.low is not None:
             d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=1)]
-            d.additional_constraints = f"integer in [{int(spec.low)}, {int(spec.high)}]"
     elif isinstance(value, float):
         d.type = ParameterType.PARAMETER_DOUBLE
         if spec.low is not None:
             d.floating_point_range = [FloatingPointRange(from_value=float(spec.low), to_value=float(spec.high),
                                                          step=0.0)]
-            d.additional_constraints = f"in [{spec.low:g}, {spec.high:g}] (see description for open bounds)"
     elif isinstance(value, str):
         d.type = ParameterType.PARAMETER_STRING
-        if spec.choices:
-            d.additional_constraints = "one of: " + ", ".join(spec.choices)
     elif isinstance(value, list):
         strings = bool(value) and isinstance(value[0], str)          # noise_learning.learn
         d.type = ParameterType.PARAMETER_STRING_ARRAY if strings else ParameterType.PARAMETER_DOUBLE_ARRAY
@@ -380,6 +287,50 @@ def _check_range(name: str, value: Any, low: float, high: float) -> None:
         raise ParameterError(f"{name} = {value!r} is outside the allowed range [{low:g}, {high:g}]")
 
 
+# NodeSettings fields read from a parameter of another name (initial_pose: three);
+# every other field is the parameter of its own name, converted to the field's type.
+_SETTING_PARAMETERS = {"input_reliability": "input_qos.reliability", "input_depth": "input_qos.depth",
+                       "initial_pose": ("initial_pose.x", "initial_pose.y", "initial_pose.yaw")}
+
+
+def _node_settings(merged: dict[str, Any]) -> NodeSettings:
+    """NodeSettings from the checked node parameters (NODE_SPECS), plus the rules across them."""
+    values = {}
+    for f in fields(NodeSettings):
+        source = _SETTING_PARAMETERS.get(f.name, f.name)
+        if isinstance(source, tuple):
+            values[f.name] = tuple(float(merged[name]) for name in source)
+        else:
+            values[f.name] = type(f.default)(merged[source])
+    settings = NodeSettings(**values)
+    for name in ("map_frame", "odom_frame", "base_frame", "odom_topic", "control_topic", "observations_topic"):
+        if not getattr(settings, name).strip():
+            raise ParameterError(f"{name} must not be empty")
+    if len({settings.map_frame, settings.odom_frame, settings.base_frame}) < 3:
+        raise ParameterError(f"map_frame, odom_frame and base_frame must differ (got {settings.map_frame!r}, "
+                             f"{settings.odom_frame!r}, {settings.base_frame!r})")
+    return settings
+
+
+def _core_config(merged: dict[str, Any], settings: NodeSettings) -> SlamConfig:
+    """SlamConfig from the core parameters; its validate() applies the ranges of the field metadata."""
+    sections = {f.name for f in fields(SlamConfig)}
+    nested: dict[str, dict[str, Any]] = {}
+    for name, value in merged.items():
+        section, _, key = name.partition(".")
+        if section not in sections:
+            continue
+        if name == "motion.model":
+            value = resolve_motion_model(value, settings.motion_source, settings.control_angular)
+        elif name == "filter.seed":
+            value = None if int(value) < 0 else int(value)
+        nested.setdefault(section, {})[key] = value
+    try:
+        return SlamConfig.from_dict(nested)
+    except (ValueError, TypeError) as error:
+        raise ParameterError(str(error)) from None
+
+
 def build(values: dict[str, Any]) -> tuple[SlamConfig, NodeSettings]:
     """SlamConfig and NodeSettings from flat parameter values; ParameterError names the culprit."""
     merged = defaults()
@@ -392,51 +343,7 @@ def build(values: dict[str, Any]) -> tuple[SlamConfig, NodeSettings]:
         elif spec.low is not None:
             _check_range(spec.name, value, spec.low, spec.high)
     for spec in core_specs():
-        if spec.choices:
+        if spec.choices and isinstance(spec.default, str):      # lists of names: by SlamConfig.validate
             _check_choice(spec.name, merged[spec.name], spec.choices)
-    settings = NodeSettings(
-        map_frame=str(merged["map_frame"]), odom_frame=str(merged["odom_frame"]),
-        base_frame=str(merged["base_frame"]), sensor_frame=str(merged["sensor_frame"]),
-        publish_tf=bool(merged["publish_tf"]),
-        transform_publish_period=float(merged["transform_publish_period"]),
-        transform_timeout=float(merged["transform_timeout"]),
-        map_publish_period=float(merged["map_publish_period"]),
-        diagnostics_period=float(merged["diagnostics_period"]),
-        path_max_length=int(merged["path_max_length"]),
-        path_publish_max_poses=int(merged["path_publish_max_poses"]),
-        publish_particles=bool(merged["publish_particles"]),
-        motion_source=str(merged["motion_source"]), control_angular=str(merged["control_angular"]),
-        odom_topic=str(merged["odom_topic"]), control_topic=str(merged["control_topic"]),
-        observations_topic=str(merged["observations_topic"]),
-        input_reliability=str(merged["input_qos.reliability"]), input_depth=int(merged["input_qos.depth"]),
-        input_delay=float(merged["input_delay"]), reset_on_time_jump=bool(merged["reset_on_time_jump"]),
-        time_jump_threshold=float(merged["time_jump_threshold"]), map_file=str(merged["map_file"]),
-        map_directory=str(merged["map_directory"]),
-        load_map_on_start=bool(merged["load_map_on_start"]),
-        initial_pose=(float(merged["initial_pose.x"]), float(merged["initial_pose.y"]),
-                      float(merged["initial_pose.yaw"])),
-        warn_throttle_period=float(merged["warn_throttle_period"]),
-        marker_sigma=float(merged["marker_sigma"]),
-    )
-    for name in ("map_frame", "odom_frame", "base_frame", "odom_topic", "control_topic", "observations_topic"):
-        if not getattr(settings, name).strip():
-            raise ParameterError(f"{name} must not be empty")
-    if len({settings.map_frame, settings.odom_frame, settings.base_frame}) < 3:
-        raise ParameterError(f"map_frame, odom_frame and base_frame must differ (got {settings.map_frame!r}, "
-                             f"{settings.odom_frame!r}, {settings.base_frame!r})")
-
-    nested: dict[str, dict[str, Any]] = {}
-    for name, value in merged.items():
-        section, _, key = name.partition(".")
-        if section not in {f.name for f in fields(SlamConfig)}:
-            continue
-        if name == "motion.model":
-            value = resolve_motion_model(value, settings.motion_source, settings.control_angular)
-        elif name == "filter.seed":
-            value = None if int(value) < 0 else int(value)
-        nested.setdefault(section, {})[key] = value
-    try:
-        config = SlamConfig.from_dict(nested)
-    except (ValueError, TypeError) as error:
-        raise ParameterError(str(error)) from None
-    return config, settings
+    settings = _node_settings(merged)
+    return _core_config(merged, settings), settings

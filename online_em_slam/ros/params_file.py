@@ -3,17 +3,18 @@
     python -m online_em_slam.ros.params_file > config/online_em_slam.yaml
 
 Every key, default, description, range and read-only flag comes from the specs
-that also build the ROS parameter descriptors, the validation and the offline
-params-file reader; test/test_params_file.py checks the committed file is this
-output, so the three can never disagree.
+that also build the ROS parameter descriptors and the offline params-file
+reader; the core ones are derived from the field metadata of core/config.py,
+which SlamConfig.validate checks (a range shown "(0, 100]" excludes 0).
+test/test_params_file.py checks the committed file is this output, so they can
+never disagree.
 """
 from __future__ import annotations
 
-import math
 import sys
 import textwrap
 
-from .params import NODE_SPECS, ParamSpec, core_specs
+from .params import NODE_SPECS, ParamSpec, core_specs, range_text
 
 HEADER = """\
 # Parameters of online_em_slam_node (ros2 run online_em_slam online_em_slam_node
@@ -22,7 +23,8 @@ HEADER = """\
 # point (1.0, not 1): ROS 2 refuses an integer for a double parameter.
 # Core settings (motion.*, sensor.*, noise.*, filter.*, em.*, association.*) changed at run
 # time take effect at the next reset (~/reset); out-of-range values are refused.
-# Generated from online_em_slam/ros/params.py: python -m online_em_slam.ros.params_file
+# Generated from the core's field metadata (online_em_slam/core/config.py) and the node specs
+# (online_em_slam/ros/params.py): python -m online_em_slam.ros.params_file
 /**:
   ros__parameters:
 """
@@ -51,17 +53,11 @@ def value_text(value) -> str:
     return str(value)
 
 
-def bound_text(value: float) -> str:
-    """Whole numbers in full below 1e7 (1000000, not 1e+06), others as %g."""
-    if float(value).is_integer() and abs(value) < 1e7:
-        return str(int(value))
-    return f"{value:g}"
-
-
 def comment(spec: ParamSpec) -> str:
     text = spec.description
-    if spec.low is not None and spec.high is not None and math.isfinite(spec.low):
-        text += f" Range [{bound_text(spec.low)}, {bound_text(spec.high)}]."
+    interval = range_text(spec)
+    if interval is not None:
+        text += f" {'Each entry in' if isinstance(spec.default, list) else 'Range'} {interval}."
     if spec.read_only:
         text += " Read-only (set at start-up)."
     return textwrap.fill(text, WIDTH, initial_indent="    # ", subsequent_indent="    # ")
