@@ -5,14 +5,11 @@ Buffer answering from a table, a TransformListener that does nothing, no
 TransformBroadcaster) is put in sys.modules before the node is made.
 """
 import math
-import os
 import sys
 import types
 
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "OFF"
-
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
+import numpy as np
+import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
@@ -27,6 +24,14 @@ from online_em_slam.ros.params import NodeSettings  # noqa: E402
 from online_em_slam.ros.tf import SensorFrames, reexpress  # noqa: E402
 
 T0 = 1000.0
+
+
+@pytest.fixture(autouse=True)
+def _no_discovery(monkeypatch):
+    """All nodes of these tests live in this process: discovery off (conftest.py sets it before
+    rclpy is imported; set per test, not at import, which would undo test_replay.py's LOCALHOST
+    for its multi-process tests when the whole suite is collected)."""
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
 
 
 def fake_tf2_ros(transforms: dict) -> types.ModuleType:

@@ -6,17 +6,22 @@ real tf2_msgs/msg/TFMessage type name and hash.  Without tf2_msgs it keeps the
 ~/map_to_odom fallback (checked here with a fake node, no rclpy needed).
 """
 import math
-import os
 import sys
 
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "OFF"
-
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
+import numpy as np
+import pytest
 
 #: `ros2 topic info -v /tf` on a real Jazzy install.
 TF_MESSAGE_HASH = "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087"
 T0 = 1000.0
+
+
+@pytest.fixture(autouse=True)
+def _no_discovery(monkeypatch):
+    """All nodes of these tests live in this process: discovery off (conftest.py sets it before
+    rclpy is imported; set per test, not at import, which would undo test_replay.py's LOCALHOST
+    for its multi-process tests when the whole suite is collected)."""
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
 
 
 def _tf2_msgs_importable() -> bool:
