@@ -300,3 +300,34 @@ def test_node_diagnostics_show_the_learned_values():
         assert 0.01 <= float(diagnostics["noise_learned.sigma_range"]) <= 10.0
     finally:
         ros.close()
+
+
+# ----------------------------------------------------------------- persistence
+def test_learned_noise_travels_with_the_map_file(tmp_path):
+    """save_map writes the noise in use; load_map on a fresh estimator (configured 3x off)
+    starts from it at once; with learning off, or a corrupt noise entry, nothing changes."""
+    from online_em_slam.core.mapping import mapfile
+
+    scenario = simulate(ScenarioConfig(seed=1, n_steps=400, **TRUTH))
+    config = started_wrong(slam_config_for(scenario, num_particles=20), 3.0)
+    slam = run(scenario, config)
+    path = str(tmp_path / "map.npz")
+    slam.save_map(path)
+    in_use = slam.learned_noise_parameters()
+    assert in_use["noise.sigma_range"] != config.noise.sigma_range          # learned and in use
+
+    fresh = OnlineEMSlam(config, initial_pose=scenario.initial_pose)
+    fresh.load_map(path)
+    restored = fresh.learned_noise_parameters()
+    for key in ("noise.sigma_range", "noise.sigma_bearing", "noise.mixture_weights", "motion.sigma_speed"):
+        assert restored[key] == pytest.approx(in_use[key], rel=1e-12)
+
+    off = OnlineEMSlam(replace_section(config, noise_learning=NoiseLearningConfig(enabled=False)),
+                       initial_pose=scenario.initial_pose)
+    off.load_map(path)
+    assert off.learned_noise_parameters()["noise.sigma_range"] == config.noise.sigma_range
+
+    arrays = dict(np.load(path))
+    arrays["noise"] = arrays["noise"] * np.array([-1.0, 1, 1, 1, 1])             # negative sigma_range
+    with pytest.raises(mapfile.MapFileError, match="noise"):
+        mapfile.check_map(arrays)

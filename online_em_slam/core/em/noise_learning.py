@@ -289,7 +289,29 @@ class NoiseLearner:
         self.estimate = config.noise                     # current M-step values
         self.scale_estimate = 1.0
         self.scale_in_use = 1.0
+        self._start = config.noise                       # in use until warm: configured, or restored
         self._in_use = config.noise
+
+    def start_from(self, noise: ObservationNoiseConfig, motion_scale: float) -> None:
+        """Start from values learned earlier (a loaded map file) instead of the configured
+        ones: in use at once, then replaced by this run's estimates once they are warm."""
+        if not self.learn:
+            return
+        observation = bool(self.learn & OBSERVATION_QUANTITIES)
+        if observation:
+            self.estimate = self._start = self._in_use = noise
+        if "motion_scale" in self.learn:
+            low, high = self.settings.motion_scale_limits
+            self.scale_estimate = self.scale_in_use = float(np.clip(motion_scale, low, high))
+
+    def saved_values(self) -> dict[str, np.ndarray] | None:
+        """The values in use for a map file (None when nothing is learned)."""
+        if not self.learn:
+            return None
+        noise = self._in_use
+        return {"noise": np.array([noise.sigma_range, noise.range_growth, noise.sigma_bearing, noise.rho,
+                                   self.scale_in_use]),
+                "noise_mixture": np.array([noise.mixture_weights, noise.mixture_scales], dtype=float)}
 
     # ------------------------------------------------------------ what the estimator uses
     @property
@@ -333,7 +355,7 @@ class NoiseLearner:
                 self.observations.blend(sample, ranges.size)
                 self.range_bins.blend(ranges, squared)
                 self.estimate = self._observation_m_step(self.observations.value)
-                self._in_use = self.estimate if self.observation_noise_warm else self.config.noise
+                self._in_use = self.estimate if self.observation_noise_warm else self._start
 
     def _observation_statistics(self, data: FilterStepData, n_obs: np.ndarray):
         """(the step's mean of [E_bb, rho term, responsibilities, r_c q], ranges, E_rr), from (E)."""

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -552,6 +552,21 @@ class OnlineEMSlam:
         self._map.created[:] = np.zeros(m, dtype=np.int64)
         self._m_step.restore(arrays, self._map.theta)
 
+    def _restore_noise(self, arrays: dict[str, np.ndarray]) -> None:
+        """The learned noise of a map file becomes the learner's starting point (when
+        learning is on and the file's mixture has the configured number of components)."""
+        if "noise" not in arrays:
+            return
+        weights, scales = arrays["noise_mixture"]
+        configured = self.config.noise
+        if len(weights) != len(configured.mixture_weights):
+            self.drops["map_noise_mismatch"] += 1      # another noise model: keep the configured one
+            return
+        sigma_r, growth, sigma_b, rho, scale = (float(v) for v in arrays["noise"])
+        noise = replace(configured, sigma_range=sigma_r, range_growth=growth, sigma_bearing=sigma_b, rho=rho,
+                        mixture_weights=tuple(map(float, weights)), mixture_scales=tuple(map(float, scales)))
+        self._noise.start_from(noise, scale)
+
     def save_map(self, path: str) -> None:
         """Write map, statistics, counts and pose atomically (core/mapping/mapfile.py).
 
@@ -561,6 +576,7 @@ class OnlineEMSlam:
         from ..mapping import mapfile  # noqa: PLC0415
         data = self._m_step_arrays()
         data["pose"] = self.pose().mean
+        data.update(self._noise.saved_values() or {})
         mapfile.write_map(path, data)
 
     def load_map(self, path: str, restore_pose: bool = True) -> None:
@@ -579,6 +595,7 @@ class OnlineEMSlam:
         try:
             self.reset(pose if restore_pose else None, self._input.last_stamp)
             self._restore_map(loaded)
+            self._restore_noise(loaded)
         except BaseException:
             self.__dict__.clear()
             self.__dict__.update(snapshot)

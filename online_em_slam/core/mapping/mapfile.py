@@ -48,6 +48,11 @@ ROW_FIELDS = {
     "avg_count": ((), "count"),
 }
 _OTHER_FIELDS = {"version": (), "pose": (3,)}
+# Optional: the noise in use when learned online (noise_learning.py), restored on load:
+# noise = (sigma_range, range_growth, sigma_bearing, rho, motion_scale), noise_mixture =
+# (mixture weights, mixture scales) as a (2, C) array.
+_NOISE_FIELDS = ("noise", "noise_mixture")
+MAX_MIXTURE_COMPONENTS = 16
 _NUMERIC = {"float": "biuf", "count": "biu", "id": "iu", "flag": "biu"}
 _KIND_TEXT = {"float": "numbers", "count": "integers", "id": "integer ids", "flag": "booleans"}
 
@@ -173,8 +178,30 @@ def _check_version(value: np.ndarray) -> None:
         raise MapFileError(f"map format version {value.tolist()!r}, expected {FORMAT_VERSION}")
 
 
+def _check_noise(noise: np.ndarray, mixture: np.ndarray) -> dict[str, np.ndarray]:
+    """Learned noise values: stds > 0, growth >= 0, |rho| < sigma_r sigma_b, scale > 0,
+    mixture weights summing to 1 and scales > 0."""
+    if noise.shape != (5,) or noise.dtype.kind not in "iuf" or mixture.dtype.kind not in "iuf":
+        raise MapFileError(f"noise has shape {noise.shape} and type {noise.dtype}, expected 5 numbers")
+    if mixture.ndim != 2 or mixture.shape[0] != 2 or not 1 <= mixture.shape[1] <= MAX_MIXTURE_COMPONENTS:
+        raise MapFileError(f"noise_mixture has shape {mixture.shape}, expected (2, C) with "
+                           f"1 <= C <= {MAX_MIXTURE_COMPONENTS}")
+    noise, mixture = noise.astype(float), mixture.astype(float)
+    if not (np.all(np.isfinite(noise)) and np.all(np.isfinite(mixture))):
+        raise MapFileError("noise holds non-finite values")
+    sigma_r, growth, sigma_b, rho, scale = noise
+    if min(sigma_r, sigma_b, scale) <= 0 or growth < 0 or abs(rho) >= sigma_r * sigma_b:
+        raise MapFileError(f"noise {noise.tolist()} is not a valid (sigma_range > 0, range_growth >= 0, "
+                           f"sigma_bearing > 0, |rho| < sigma_range sigma_bearing, motion_scale > 0)")
+    weights, scales = mixture
+    if np.any(weights < 0) or abs(weights.sum() - 1.0) > 1e-6 or np.any(scales <= 0):
+        raise MapFileError(f"noise_mixture {mixture.tolist()}: weights must be >= 0 and sum to 1, scales > 0")
+    return {"noise": noise, "noise_mixture": mixture}
+
+
 def check_map(arrays: dict, max_landmarks: int = MAX_LANDMARKS) -> dict[str, np.ndarray]:
-    """Validated copy of a map's arrays (every field of ROW_FIELDS, ``pose``, ``version``)."""
+    """Validated copy of a map's arrays (every field of ROW_FIELDS, ``pose``, ``version``,
+    and the learned noise when present)."""
     missing = [name for name in (*ROW_FIELDS, *_OTHER_FIELDS) if name not in arrays]
     if missing:
         raise MapFileError(f"missing array(s): {', '.join(missing)}")
@@ -187,6 +214,11 @@ def check_map(arrays: dict, max_landmarks: int = MAX_LANDMARKS) -> dict[str, np.
     checked = {name: _check_row_field(name, values[name], m) for name in ROW_FIELDS}
     checked["pose"] = _check_pose(values["pose"])
     checked["version"] = np.array(FORMAT_VERSION)
+    present = [name for name in _NOISE_FIELDS if name in arrays]
+    if present and len(present) != len(_NOISE_FIELDS):
+        raise MapFileError(f"{present[0]} without {[n for n in _NOISE_FIELDS if n not in present][0]}")
+    if present:
+        checked.update(_check_noise(np.asarray(arrays["noise"]), np.asarray(arrays["noise_mixture"])))
     return checked
 
 
@@ -201,6 +233,8 @@ def write_map(path, arrays: dict) -> None:
 
 
 def _expected_shape(name: str, m: int | None) -> tuple | None:
+    if name in _NOISE_FIELDS:
+        return (5,) if name == "noise" else None
     if name in _OTHER_FIELDS:
         return _OTHER_FIELDS[name]
     return None if m is None else (m,) + ROW_FIELDS[name][0]
@@ -216,6 +250,8 @@ def _read_member(archive: zipfile.ZipFile, name: str, m: int | None, max_landmar
         shape, _, dtype = read_header(stream)
     if dtype.hasobject:
         raise MapFileError(f"{name} holds Python objects")
+    if len(shape) > 1 and name == "noise_mixture" and shape[1] > MAX_MIXTURE_COMPONENTS:
+        raise MapFileError(f"noise_mixture has {shape[1]} components, more than {MAX_MIXTURE_COMPONENTS}")
     if shape and shape[0] > max_landmarks:
         raise MapFileError(f"{name} has {shape[0]} rows, more than the limit of {max_landmarks} landmarks")
     expected = _expected_shape(name, m)
@@ -238,7 +274,7 @@ def _read_arrays(path: str, max_landmarks: int) -> dict[str, np.ndarray]:
         if arrays["theta"].ndim != 2 or arrays["theta"].shape[1] != 2:     # M comes from theta: check it first
             raise MapFileError(f"theta has shape {arrays['theta'].shape}, expected (M, 2)")
         m = arrays["theta"].shape[0]
-        for name in (*ROW_FIELDS, "pose"):
+        for name in (*ROW_FIELDS, "pose", *(n for n in _NOISE_FIELDS if n in present)):
             if name not in arrays:
                 arrays[name] = _read_member(archive, name, m, max_landmarks)
         return arrays
