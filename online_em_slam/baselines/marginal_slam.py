@@ -48,8 +48,7 @@ from ..core.em.step import FilterStepData
 from ..core.mapping.landmarks import LandmarkTable
 from ..core.models.observation import inv_det_2x2
 from ..core.filter.slam import OnlineEMSlam
-from ..core.em.statistics import (STAT_DIM, backward_kernel, differing_landmarks, forward_smooth,
-                               observation_statistics, paris_indices, paris_smooth, unpack)
+from ..core.em.statistics import STAT_DIM, differing_landmarks, make_smoother, observation_statistics, unpack
 
 
 def observation_score_and_information(data: FilterStepData, theta_bar: np.ndarray
@@ -61,23 +60,6 @@ def observation_score_and_information(data: FilterStepData, theta_bar: np.ndarra
     A, b = unpack(observation_statistics(data.H, data.precision, data.nu, theta_bar[None]))
     score = b - np.einsum("npij,pj->npi", A, theta_bar)
     return score, A
-
-
-def smooth_scores(alpha: np.ndarray, data: FilterStepData, smoother: str, draws: int,
-                  rng: np.random.Generator) -> np.ndarray:
-    """Carry the accumulated scores (N, K, 2) from the particles at t-1 to those at t.
-
-    The kernels of statistics.py, as in the E-step: forward-only (O(N^2)),
-    PaRIS (O(NK)) or ancestry (O(N)).
-    """
-    if smoother == "ancestry":
-        return alpha[data.ancestors]
-    if smoother == "paris":
-        idx = paris_indices(data.log_weights_prev, data.transition_means, data.transition_covs,
-                            data.particles, draws, rng)
-        return paris_smooth(alpha, idx)
-    kernel = backward_kernel(data.log_weights_prev, data.transition_means, data.transition_covs, data.particles)
-    return forward_smooth(alpha, kernel)
 
 
 def step_sizes(count: np.ndarray, exponent: float) -> np.ndarray:
@@ -92,6 +74,7 @@ class RecursiveMLMapUpdate:
                  step_size_exponent: float | None = None) -> None:
         self.config = config
         self._rng = rng
+        self._smoother = make_smoother(config.filter, rng)
         self.exponent = config.em.step_size_exponent if step_size_exponent is None else float(step_size_exponent)
         self.alpha = np.zeros((n_particles, 0, 2))    # accumulated score given the particle's pose
         self.differing = np.zeros(0, dtype=bool)       # alpha may still differ across particles
@@ -152,9 +135,8 @@ class RecursiveMLMapUpdate:
     def _propagate(self, data: FilterStepData, touched: np.ndarray) -> None:
         active = touched[self.differing[touched]]
         if active.size:
-            filt = self.config.filter
-            self.alpha[:, active] = smooth_scores(self.alpha[:, active], data, filt.smoother,
-                                                  filt.paris_draws, self._rng)
+            # The E-step's smoother pieces (statistics.py) carry the scores as they carry tau.
+            self.alpha[:, active] = self._smoother.update(self.alpha[:, active], data)
 
     def _add_observations(self, data: FilterStepData, table: LandmarkTable) -> None:
         """alpha += s for the landmarks seen; their counts, information and spread blended by gamma_n."""
