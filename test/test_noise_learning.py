@@ -331,3 +331,32 @@ def test_learned_noise_travels_with_the_map_file(tmp_path):
     arrays["noise"] = arrays["noise"] * np.array([-1.0, 1, 1, 1, 1])             # negative sigma_range
     with pytest.raises(mapfile.MapFileError, match="noise"):
         mapfile.check_map(arrays)
+
+
+# ----------------------------------------------------------------- warm-up replay
+def test_the_warmup_is_filtered_again_once_with_the_learned_noise():
+    """Once every learned quantity is in use the estimator restarts at its initial pose and
+    filters the warm-up's inputs again: once, drops not counted twice, the map as good as
+    the run given the true noise (docs/RESULTS.md has the paired figures)."""
+    scenario = simulate(ScenarioConfig(seed=1, outlier_probability=0.1, **TRUTH))
+    truth = slam_config_for(scenario, num_particles=PARTICLES)
+    off_config = started_wrong(truth, 3.0, replay_warmup=False)
+    replayed, plain = run(scenario, started_wrong(truth, 3.0)), run(scenario, off_config)
+    assert replayed.learned_noise()["warmup_replayed"] and not plain.learned_noise()["warmup_replayed"]
+    assert replayed._warmup_log is None
+    assert replayed.drops == plain.drops
+    rmse_truth, _ = map_errors(run(scenario, truth), scenario)
+    assert map_errors(replayed, scenario)[0] <= 1.10 * rmse_truth < map_errors(plain, scenario)[0]
+
+
+def test_no_replay_after_a_relocalisation_or_beyond_the_input_cap():
+    scenario = simulate(ScenarioConfig(seed=1, n_steps=600, **TRUTH))
+    truth = slam_config_for(scenario, num_particles=20)
+    capped = run(scenario, started_wrong(truth, 3.0, max_replay_inputs=50))
+    assert not capped.learned_noise()["warmup_replayed"] and capped.learned_noise()["observation_noise_in_use"]
+    moved = OnlineEMSlam(started_wrong(truth, 3.0), initial_pose=scenario.initial_pose)
+    for k, step in enumerate(scenario.steps):
+        feed(moved, step)
+        if k == 20:
+            moved.set_pose(moved.pose().mean, (0.1, 0.1, 0.01))
+    assert not moved.learned_noise()["warmup_replayed"]

@@ -367,6 +367,11 @@ class NoiseLearningConfig:
         of it (below 1 follows a motion noise that changes, e.g. with terrain).
     warmup_observations / warmup_steps: the learned observation noise is used
         after this many observations, the motion scale after this many scans.
+    replay_warmup / max_replay_inputs: the warm-up ran under the configured
+        (possibly wrong) noise, and the map's frame set then stays; once every
+        learned quantity is in use, the estimator restarts at its initial pose
+        and filters the warm-up's inputs (at most ``max_replay_inputs``) again
+        with the learned noise as the starting values, once.
     motion_window: filter steps over which the pose is predicted open loop for
         the motion scale's statistic (one step's motion noise is small next to
         the pose's uncertainty; L steps' is not).
@@ -393,6 +398,10 @@ class NoiseLearningConfig:
                                      "is used.")
     warmup_steps: int = param(50, 0, 10 ** 9, doc="Scans (motion statistics) before the learned motion scale "
                               "is used.")
+    replay_warmup: bool = param(True, doc="Once every learned quantity is in use, filter the warm-up's inputs "
+                                "again from the start with the learned noise (once; the pose may jump then).")
+    max_replay_inputs: int = param(100000, 0, 10 ** 7, doc="Inputs kept for the warm-up replay; a longer "
+                                   "warm-up is not replayed.")
     motion_window: int = param(10, 1, 1000, doc="Filter steps over which the pose is predicted open loop for "
                                "the motion scale's statistic.")
     min_landmark_observations: int = param(5, 1, 10 ** 6, doc="Observations of landmarks seen fewer times (this "

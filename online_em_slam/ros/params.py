@@ -68,7 +68,8 @@ NODE_SPECS = (
     ParamSpec("odom_frame", "odom", "Odometry frame; the node publishes map -> odom."),
     ParamSpec("base_frame", "base_link", "Robot base frame (child of the odometry messages)."),
     ParamSpec("sensor_frame", "", "Frame of the observation clouds; clouds in another frame (other than "
-              "base_frame) are used but counted and warned about. Empty: any frame but map_frame and odom_frame."),
+              "base_frame, or one TF resolves when tf2_ros is importable) are used but counted and warned about. "
+              "Empty: any frame but map_frame and odom_frame."),
     ParamSpec("publish_tf", True, "Publish map -> odom (disable when another node owns it)."),
     ParamSpec("transform_publish_period", 0.05, "Republish map -> odom every this many seconds "
               "(0: only after updates).", 0.0, 10.0, read_only=True),

@@ -315,6 +315,13 @@ class NoiseLearner:
 
     # ------------------------------------------------------------ what the estimator uses
     @property
+    def all_in_use(self) -> bool:
+        """Every learned quantity has replaced its configured value (nothing learned: False)."""
+        observation = not (self.learn & OBSERVATION_QUANTITIES) or self.observation_noise_warm
+        motion = "motion_scale" not in self.learn or self.motion_scale_warm
+        return bool(self.learn) and observation and motion
+
+    @property
     def observation_noise_warm(self) -> bool:
         return self.observations.count >= self.settings.warmup_observations and self.observations.value is not None
 

@@ -115,6 +115,11 @@ class OnlineEMSlam:
         self._map = LandmarkTable()
         self._m_step: MStep = self._m_step_factory(cfg, pose, self._rng)
         self._noise = NoiseLearner(cfg)          # learned noise (noise_learning.py); configured until warm
+        # The warm-up's inputs, filtered again once the learned noise is in use (_replay_warmup).
+        replay = cfg.noise_learning.replay_warmup and bool(self._noise.learn)
+        self._warmup_log: list | None = [] if replay else None
+        self._warmup_start = (pose.copy(), stamp)
+        self._warmup_replayed = False
 
     def start_new_pass(self, initial_pose=None, stamp: float | None = None) -> None:
         """Prepare another pass over the same data: batch EM by repeated passes.
@@ -133,6 +138,7 @@ class OnlineEMSlam:
             saved[name] = np.zeros_like(saved[name])
         self.reset(initial_pose, stamp)
         self._restore_map(saved)
+        self._warmup_log = None
 
     def set_pose(self, pose, std=None) -> None:
         """Put the robot at ``pose`` (an initial-pose message, a relocalisation after
@@ -157,6 +163,7 @@ class OnlineEMSlam:
         self._reset_track(pose)
         self._resample_pending, self._ess = False, float(n)
         self._anchor_time = self._input.last_stamp
+        self._warmup_log = None          # the inputs so far no longer lead to this state
 
     def restart_time_line(self, pose, std=None) -> None:
         """A confirmed jump of the time line (a bag played in a loop, a clock set back):
@@ -230,6 +237,7 @@ class OnlineEMSlam:
 
     def add_control(self, stamp: float, control) -> bool:
         """Control u = (speed, steering angle or yaw rate) valid from ``stamp`` on."""
+        self._log_warmup("add_control", stamp, control)
         u = self._input.control(stamp, control)
         if u is None:
             return False
@@ -239,6 +247,7 @@ class OnlineEMSlam:
 
     def add_odometry(self, stamp: float, odom_pose) -> bool:
         """Odometry-frame pose (x, y, yaw); the increment since the previous one drives motion."""
+        self._log_warmup("add_odometry", stamp, odom_pose)
         usable, increment, dt = self._input.odometry_motion(stamp, odom_pose)
         if not usable:
             return False
@@ -250,6 +259,7 @@ class OnlineEMSlam:
     def add_observations(self, stamp: float, observations: Observations) -> StepReport:
         """Run one filter step and EM update with a scan of range-bearing observations."""
         started = time.perf_counter()
+        self._log_warmup("add_observations", stamp, observations)
         report = StepReport(n_observations=len(observations))
         if not self._input.accept_stamp(stamp):
             report.dropped["out_of_order"] = len(observations) or 1
@@ -257,9 +267,35 @@ class OnlineEMSlam:
         self._advance_to(float(stamp))
         observations = self._valid_observations(observations, report)
         self._filter_step(observations, report)
+        if self._warmup_log is not None and self._noise.all_in_use:
+            self._replay_warmup()
         report.ess = self._ess
         report.duration = time.perf_counter() - started
         return report
+
+    def _log_warmup(self, method: str, stamp: float, value) -> None:
+        log = self._warmup_log
+        if log is None:
+            return
+        if len(log) >= self.config.noise_learning.max_replay_inputs:
+            self._warmup_log = None                 # too long a warm-up to keep: no replay
+            return
+        log.append((method, stamp, value))
+
+    def _replay_warmup(self) -> None:
+        """The warm-up ran under the configured noise, and the map's frame set then would
+        stay: restart at the initial pose and filter the warm-up's inputs again, starting
+        from the learned noise (docs/METHOD.md, "Noise learned online").  Once."""
+        log, noise, scale = self._warmup_log, self._noise.noise_config(), self._noise.motion_scale()
+        drops = dict(self.drops)                    # the replayed inputs were counted already
+        self.reset(*self._warmup_start)
+        self._warmup_log = None
+        self._noise.start_from(noise, scale)
+        for method, stamp, value in log:
+            getattr(self, method)(stamp, value)
+        self.drops.clear()
+        self.drops.update(drops)
+        self._warmup_replayed = True
 
     def _valid_observations(self, obs: Observations, report: StepReport) -> Observations:
         sensor = self.config.sensor
@@ -514,7 +550,7 @@ class OnlineEMSlam:
 
     def learned_noise(self) -> dict:
         """Noise values learned online (noise_learning.py): estimates, counts, and whether in use."""
-        return self._noise.learned()
+        return {**self._noise.learned(), "warmup_replayed": self._warmup_replayed}
 
     def learned_noise_parameters(self) -> dict:
         """The noise in use as flat node parameters (noise.*, motion.* stds), for a parameter file."""
@@ -596,6 +632,7 @@ class OnlineEMSlam:
             self.reset(pose if restore_pose else None, self._input.last_stamp)
             self._restore_map(loaded)
             self._restore_noise(loaded)
+            self._warmup_log = None
         except BaseException:
             self.__dict__.clear()
             self.__dict__.update(snapshot)
