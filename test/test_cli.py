@@ -107,6 +107,10 @@ def test_param_file_formats(tmp_path):
     assert (c.motion.model, s.motion_source, s.control_angular) == ("acfr", "control", "steering")
     c, s = config_from_params(ROOT / "config" / "victoria_park.yaml")
     assert (c.motion.model, s.motion_source, c.sensor.offset_x) == ("acfr", "control", 3.78)
+    # The learned configuration sets no noise value: every one is the default, learned online.
+    c, _ = config_from_params(ROOT / "config" / "car_park_learning.yaml")
+    assert c.noise_learning.enabled and c.noise == config_from_params({})[0].noise
+    assert (c.motion.sigma_speed, c.sensor.offset_x) == (config_from_params({})[0].motion.sigma_speed, 3.78)
 
 
 def test_params_build_importable_without_ros():
