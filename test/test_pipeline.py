@@ -251,3 +251,29 @@ def test_a_watched_stream_running_behind_under_load_stays_on_the_time_line():
     assert path.drops == Counter()
     # A lone bad stamp of the watched stream is still off the time line.
     assert not path.on_time_line(ODOMETRY, 0.0 - 5.0) and not path.on_time_line(ODOMETRY, 1e6)
+
+
+def test_a_stream_draining_late_across_a_loop_seam_restarts_once_not_at_every_input():
+    """Soak (issue 12 figures): the Car Park bag played in a loop into a loaded node; the controls'
+    queue drained 3.5 s behind the clouds across the seam. After the clouds confirmed the jump back,
+    every later batch of three inputs of either stream looked like another jump against the other
+    stream's stamps: 31 restarts in 3 s, each putting the robot back at the initial pose (with the
+    map kept, 15 landmarks became 29). A confirmed jump now moves only the streams that made it."""
+    path = InputPath((CONTROL, OBSERVATIONS), silence=1.0, jump_threshold=1.0)
+    lag, period = 3.5, 125.0
+
+    def stamp(w):                                        # bag time of play time w, looped
+        return 100.0 + (w % period)
+    restarts = []
+    for k in range(int(2.5 * period / 0.025)):
+        w = 0.025 * k
+        arrivals = [(CONTROL, stamp(w - lag), (1.0, 0.0))] if w >= lag else []
+        arrivals += [(OBSERVATIONS, stamp(w), EMPTY)] if k % 8 == 0 else []
+        for kind, t, payload in arrivals:
+            if path.push(kind, t, payload, w).restarted:
+                restarts.append(round(w, 2))
+    # The controls starting 3.5 s behind restart once; then per seam the clouds and, 3.5 s later,
+    # the controls each move to the new pass once.
+    assert len(restarts) == 5, restarts
+    assert [r for r in restarts if r > 10] == [125.4, 128.55, 250.4, 253.55]
+    assert "stamp_outlier" not in path.drops

@@ -79,7 +79,12 @@ class StampGuard:
         held, self._candidate = self._candidate, []
         old = max(self._newest.values())
         backward = held[0].stamp < old
-        self._newest = {}
+        # Only the streams that made the jump move to the new line.  The others keep their
+        # own references: one that runs behind (a queue drained late) joins the new line when
+        # its own stamps jump, instead of looking like yet another jump against the new
+        # line's stamps (at a loop seam under load that flip-flopped, one reset each time).
+        for kind in {item.kind for item in held}:
+            self._newest.pop(kind, None)
         for item in held:
             self._accept(item)
         return Verdict(JUMPED, held, backward, abs(held[0].stamp - old))
