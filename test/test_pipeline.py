@@ -277,3 +277,14 @@ def test_a_stream_draining_late_across_a_loop_seam_restarts_once_not_at_every_in
     assert len(restarts) == 5, restarts
     assert [r for r in restarts if r > 10] == [125.4, 128.55, 250.4, 253.55]
     assert "stamp_outlier" not in path.drops
+
+
+def test_a_watched_stream_follows_a_jump_confirmed_by_the_merged_streams():
+    path = InputPath((CONTROL, OBSERVATIONS), silence=0.0, jump_threshold=1.0)
+    for k in range(20):
+        path.push(CONTROL, 100.0 + 0.025 * k, (1.0, 0.0), 0.0)
+        assert path.on_time_line(ODOMETRY, 100.0 + 0.025 * k)
+        path.watch(ODOMETRY, 100.0 + 0.025 * k)
+    restarted = [path.push(CONTROL, 10.0 + 0.025 * k, (1.0, 0.0), 0.0).restarted for k in range(3)]
+    assert restarted == [False, False, True]
+    assert path.on_time_line(ODOMETRY, 10.05)          # odometry of the new line: used again

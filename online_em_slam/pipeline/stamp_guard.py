@@ -38,6 +38,7 @@ class StampGuard:
 
     def reset(self) -> None:
         self._newest: dict[int, float] = {}        # per stream, accepted inputs only
+        self._watched: dict[int, float] = {}       # per stream that is only watched (see note)
         self._candidate: list[Input] = []
 
     @property
@@ -45,7 +46,8 @@ class StampGuard:
         return len(self._candidate)
 
     def _reference(self, kind: int) -> float | None:
-        return self._newest.get(kind, max(self._newest.values()) if self._newest else None)
+        own = self._newest.get(kind, self._watched.get(kind))
+        return own if own is not None else (max(self._newest.values()) if self._newest else None)
 
     def is_jump(self, item: Input) -> bool:
         reference = self._reference(item.kind)
@@ -85,14 +87,16 @@ class StampGuard:
         # line's stamps (at a loop seam under load that flip-flopped, one reset each time).
         for kind in {item.kind for item in held}:
             self._newest.pop(kind, None)
+        self._watched = {}                         # never checked, so never moved: judged anew
         for item in held:
             self._accept(item)
         return Verdict(JUMPED, held, backward, abs(held[0].stamp - old))
 
     def note(self, kind: int, stamp: float) -> None:
         """An input of a stream that is not checked (watched only) was on the time line: later
-        inputs of that stream are judged against it."""
-        self._accept(Input(stamp, kind))
+        inputs of that stream are judged against it (until a jump is confirmed)."""
+        previous = self._watched.get(kind)
+        self._watched[kind] = stamp if previous is None else max(previous, stamp)
 
     def _accept(self, item: Input) -> None:
         previous = self._newest.get(item.kind)
