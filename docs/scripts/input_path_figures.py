@@ -34,6 +34,16 @@ def start_node(params, initial, seed, reliability, log):
     return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
 
 
+def process_cpu_seconds(pid: int) -> float | None:
+    """User + system CPU time of a running process (Linux /proc)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            fields = stat.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def record(bag, rate, timeout=400.0):
     """Replay ``bag`` at ``rate`` and record the node's outputs; returns what was seen."""
     import rclpy
@@ -119,8 +129,8 @@ def _largest_gaps(poses, n=3):
 
 
 def compare(seen, inputs, config, settings, initial):
-    """Node outputs against the offline runner (cli.feed, in memory) on the same bag."""
-    from online_em_slam import cli
+    """Node outputs against the offline runner (runner.feed, the bag streamed) on the same bag."""
+    from online_em_slam import runner as cli
     from online_em_slam.cloud import decode_message
     from online_em_slam.evaluation import sensor_points, trajectory_metrics
 
@@ -177,13 +187,15 @@ def main(argv=None) -> int:
             node = start_node(params, initial, args.seed, args.reliability, log)
             try:
                 seen = record(bag, rate)
+                seen["node_cpu_s"] = process_cpu_seconds(node.pid)
             finally:
                 node.send_signal(signal.SIGINT)
                 try:
                     node.wait(timeout=10)
                 except subprocess.TimeoutExpired:
                     node.kill()
-        result = {"reliability": args.reliability, **summarise(seen, rate)}
+        result = {"reliability": args.reliability, **summarise(seen, rate), "node_cpu_s": seen["node_cpu_s"],
+                  "loadavg": os.getloadavg()}
         if args.compare:
             result.update(compare(seen, inputs, config, settings, initial))
         print(json.dumps(result), flush=True)
