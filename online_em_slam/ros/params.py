@@ -102,9 +102,11 @@ NODE_SPECS = (
               "input stream has delivered a message at least as recent (lossless at any replay rate); a "
               "stream silent for this long (wall-clock s) stops holding the others back. Must exceed the "
               "slowest input period (0: process each input on arrival).", 0.0, 10.0),
-    ParamSpec("reset_on_time_jump", True, "Reset when the clock or the input stamps jump back."),
-    ParamSpec("time_jump_threshold", 1.0, "A backward jump of more than this (s) resets; smaller "
-              "backward steps are dropped as out_of_order.", 0.01, 1e6, read_only=True),
+    ParamSpec("reset_on_time_jump", True, "Restart the pose and the time line (keeping the map) when the clock "
+              "or the input stamps jump back."),
+    ParamSpec("time_jump_threshold", 1.0, "A backward jump of more than this (s), once confirmed, restarts the "
+              "pose and the time line (the map stays); smaller backward steps are dropped as out_of_order.",
+              0.01, 1e6, read_only=True),
     ParamSpec("map_file", "~/.ros/online_em_slam_map.npz", "File of ~/save_map and ~/load_map; relative to "
               "map_directory, and must lie inside it ('..' and symlinks out of it are refused). Read-only "
               "at run time: any DDS participant could otherwise make ~/save_map overwrite files.",
