@@ -26,12 +26,7 @@ from online_em_slam.ros.tf import SensorFrames, reexpress  # noqa: E402
 T0 = 1000.0
 
 
-@pytest.fixture(autouse=True)
-def _no_discovery(monkeypatch):
-    """All nodes of these tests live in this process: discovery off (conftest.py sets it before
-    rclpy is imported; set per test, not at import, which would undo test_replay.py's LOCALHOST
-    for its multi-process tests when the whole suite is collected)."""
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
+pytestmark = pytest.mark.usefixtures("no_discovery")     # conftest.py
 
 
 def fake_tf2_ros(transforms: dict) -> types.ModuleType:

@@ -16,12 +16,7 @@ TF_MESSAGE_HASH = "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe
 T0 = 1000.0
 
 
-@pytest.fixture(autouse=True)
-def _no_discovery(monkeypatch):
-    """All nodes of these tests live in this process: discovery off (conftest.py sets it before
-    rclpy is imported; set per test, not at import, which would undo test_replay.py's LOCALHOST
-    for its multi-process tests when the whole suite is collected)."""
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
+pytestmark = pytest.mark.usefixtures("no_discovery")     # conftest.py
 
 
 def _tf2_msgs_importable() -> bool:
