@@ -229,6 +229,20 @@ def test_stamp_guard_refutes_only_by_the_stream_that_jumped():
     assert guard.holding == 0 and guard.drops == Counter(stamp_outlier=1)
 
 
+def test_a_watched_stream_before_any_merged_input_is_judged_on_its_own_line():
+    """Found by a whole-suite CI run: in control mode the node crashed (ValueError: max() of an
+    empty sequence) when two odometry messages came before the first control or cloud."""
+    path = InputPath((CONTROL, OBSERVATIONS), silence=1.0, jump_threshold=1.0)
+    assert path.on_time_line(ODOMETRY, 5.0)
+    path.watch(ODOMETRY, 5.0)
+    assert path.on_time_line(ODOMETRY, 5.05)
+    assert not path.on_time_line(ODOMETRY, 100.0)         # far from its own line
+    path.watch(ODOMETRY, 5.05)
+    for k in range(3):                                    # a jump against the watched line only
+        path.push(CONTROL, 50.0 + 0.025 * k, (1.0, 0.0), 0.0)
+    path.push(CONTROL, 50.1, (1.0, 0.0), 0.0)
+
+
 def test_a_watched_stream_running_behind_under_load_stays_on_the_time_line():
     """Re-measuring the sustained rate (issue 12): with control driving the motion, odometry that
     fell more than time_jump_threshold behind the controls under load was refused as stamp_outlier

@@ -53,7 +53,8 @@ class StampGuard:
         reference = self._reference(item.kind)
         if reference is None:
             return False
-        newest = max(self._newest.values())
+        # Before any checked input, a watched stream's own stamps are the only line there is.
+        newest = max(self._newest.values()) if self._newest else reference
         return item.stamp < reference - self.threshold or item.stamp > newest + self.threshold
 
     def check(self, item: Input) -> Verdict:
@@ -79,7 +80,7 @@ class StampGuard:
 
     def _confirm(self) -> Verdict:
         held, self._candidate = self._candidate, []
-        old = max(self._newest.values())
+        old = max(self._newest.values()) if self._newest else max(self._watched.values())
         backward = held[0].stamp < old
         # Only the streams that made the jump move to the new line.  The others keep their
         # own references: one that runs behind (a queue drained late) joins the new line when
