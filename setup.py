@@ -30,13 +30,22 @@ setup(
         (os.path.join(share, "config"), glob("config/*.yaml")),
         (os.path.join(share, "rviz"), glob("rviz/*.rviz")),
     ] + tree(os.path.join("data", "kth"), share),
-    install_requires=["setuptools", "numpy", "scipy"],
+    # The core, the bag tools and the plots; ROS itself comes from apt on a real Jazzy
+    # install (package.xml), or from the PyPI wheels with the "ros" extra.
+    install_requires=["setuptools", "numpy>=1.24", "scipy>=1.10", "pyyaml>=6", "rosbags>=0.10",
+                      "matplotlib>=3.7"],
     zip_safe=True,
     maintainer="online_em_slam maintainers",
     maintainer_email="maintainer@example.com",
     description="Landmark SLAM by particle online EM (ROS 2 node and ROS-free core)",
     license="Apache-2.0",
-    extras_require={"test": ["pytest"]},
+    extras_require={
+        "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-nav-msgs", "ros-jazzy-geometry-msgs",
+                "ros-jazzy-sensor-msgs", "ros-jazzy-visualization-msgs", "ros-jazzy-diagnostic-msgs",
+                "ros-jazzy-std-srvs", "ros-jazzy-rosgraph-msgs"],
+        "benchmark": ["gtsam>=4.2"],
+        "test": ["pytest>=7"],
+    },
     entry_points={
         "console_scripts": [
             "online_em_slam_node = online_em_slam.ros.node:main",
@@ -47,6 +56,7 @@ setup(
             "online-em-slam-benchmark = online_em_slam.benchmark:main",
             "online-em-slam-record = online_em_slam.record:main",
             "online-em-slam-topic = online_em_slam.topic_tool:main",
+            "online-em-slam-demo = online_em_slam.demo:main",
         ],
     },
 )

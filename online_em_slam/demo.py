@@ -44,15 +44,19 @@ INPUT_LOSS_DROPS = ("malformed_cloud", "non_finite_odometry", "non_finite_contro
 
 
 def find_params(name: str = "car_park.yaml") -> Path:
-    """config/<name> of the source tree, else of the installed package share."""
-    here = Path(__file__).resolve().parent.parent / "config" / name
-    if here.exists():
-        return here
+    """config/<name> of the source tree, else of the installed package share (ament_index
+    on a ROS install, else <sys.prefix>/share/online_em_slam after a plain pip install)."""
+    candidates = [Path(__file__).resolve().parent.parent / "config" / name]
     try:
         from ament_index_python.packages import get_package_share_directory
-        return Path(get_package_share_directory("online_em_slam")) / "config" / name
-    except Exception as error:  # noqa: BLE001
-        raise FileNotFoundError(f"config/{name} not found ({error})") from None
+        candidates.append(Path(get_package_share_directory("online_em_slam")) / "config" / name)
+    except Exception:  # noqa: BLE001  (not importable, or AMENT_PREFIX_PATH unset)
+        pass
+    candidates.append(Path(sys.prefix) / "share" / "online_em_slam" / "config" / name)
+    for path in candidates:
+        if path.exists():
+            return path
+    raise FileNotFoundError(f"config/{name} not found in {', '.join(str(p) for p in candidates)}")
 
 
 def _diag_values(status) -> dict:
@@ -78,7 +82,7 @@ def _parse_args(argv):
     parser.add_argument("--params", default=None, help="node params file (default config/car_park.yaml)")
     parser.add_argument("--rate", type=float, default=5.0, help="replay rate (default 5)")
     parser.add_argument("--seed", type=int, default=0, help="filter seed of the node and the offline run")
-    parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default 1 + pid % 100)")
+    parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default 1 + pid %% 100)")
     parser.add_argument("--timeout", type=float, default=180.0, help="overall time limit of the DDS part (s)")
     return parser.parse_args(argv)
 

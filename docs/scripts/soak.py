@@ -39,7 +39,7 @@ def main(argv=None) -> int:
     parser.add_argument("--reliability", default="best_effort", choices=("best_effort", "reliable"))
     parser.add_argument("--every", type=float, default=10.0)
     parser.add_argument("--output", default="out/soak")
-    parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default 200 + pid % 30)")
+    parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default 200 + pid %% 30)")
     args = parser.parse_args(argv)
     # A domain no test or demo uses (they take 1-179): a replay of theirs on the same domain
     # would reach this node (a first soak met one: 44 resets, a duplicated map).
