@@ -13,6 +13,7 @@ What the input path or the readers refuse is counted by reason
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections import Counter, deque
 from dataclasses import dataclass, field
@@ -25,6 +26,7 @@ from .cloud import CloudFormatError, decode_message, observations_from_message
 from .core.config import SlamConfig
 from .evaluation import DEFAULT_MATCH_GATE, InitialPose, initial_pose_from_gps
 from .pipeline import CONTROL, OBSERVATIONS, ODOMETRY, Feeder, InputPath
+from .progress import Progress
 from .quaternion import odometry_yaw
 from .tum import write_run_tum
 
@@ -266,7 +268,9 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
     durations, rows, refused = [], [], Counter()
     first = last = None
     n_obs_msgs, busy = 0, 0.0
+    bar = Progress(len(inputs.events), "run", enabled=sys.stderr.isatty())   # a terminal only, not logs
     for kind, stamp, payload, log_time in inputs.events.stream(refused):
+        bar.update()
         first = stamp if first is None or stamp < first else first
         last = stamp if last is None or stamp > last else last
         n_obs_msgs += kind == OBSERVATIONS
@@ -274,6 +278,7 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
         for item in path.push(kind, stamp, payload, log_time).released:
             _feed_one(feeder, item, durations, rows)
         busy += time.perf_counter() - started
+    bar.close()
     started = time.perf_counter()
     for item in path.flush():
         _feed_one(feeder, item, durations, rows)

@@ -69,7 +69,11 @@ def test_setup_installs_launch_rviz_config_and_console_tools():
     assert "launch/online_em_slam.launch.py" in files["share/online_em_slam/launch"]
     scripts = {s.split("=")[0].strip() for s in dist.entry_points["console_scripts"]}
     assert {"online-em-slam-record", "online-em-slam-topic", "online-em-slam", "online-em-slam-replay",
-            "online-em-slam-convert"} <= scripts
+            "online-em-slam-convert", "online-em-slam-demo"} <= scripts
+    # A plain `pip install .` must bring what the console tools import (ROS via apt or the extra).
+    needs = {r.split(">")[0].split("=")[0].strip().lower() for r in dist.install_requires}
+    assert {"numpy", "scipy", "pyyaml", "rosbags", "matplotlib"} <= needs
+    assert any(r.startswith("ros-jazzy-rclpy") for r in dist.extras_require["ros"])
 
 
 def test_tf2_msgs_builder_sources_and_path_fix(tmp_path):
