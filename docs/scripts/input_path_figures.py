@@ -168,20 +168,10 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 100)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    from online_em_slam import cli
-    from online_em_slam.kth.convert import convert
-    from online_em_slam.paramfile import config_from_params, load_params
+    from car_park_setup import car_park
 
     out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
-    bag = out / "car_park_bag"
-    if not bag.exists():
-        convert("car_park", bag, progress=False)
-    params = Path(__file__).resolve().parents[2] / "config" / "car_park.yaml"
-    values = load_params(params)
-    config, settings = config_from_params(values, {"filter.seed": args.seed})
-    inputs = cli.read_inputs(bag, settings)
-    initial = cli.choose_initial_pose("gps", inputs, config, settings, values)
+    bag, params, values, config, settings, inputs, initial = car_park(out, args.seed)
     for rate in args.rates:
         with open(out / f"node_rate{rate:g}.log", "w") as log:
             node = start_node(params, initial, args.seed, args.reliability, log)

@@ -51,19 +51,10 @@ def main(argv=None) -> int:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile
 
-    from online_em_slam.kth.convert import convert
-    from online_em_slam.paramfile import config_from_params, load_params
-    from online_em_slam.runner import choose_initial_pose, read_inputs
+    from car_park_setup import car_park
 
     out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
-    bag = out / "car_park_bag"
-    if not bag.exists():
-        convert("car_park", bag, progress=False)
-    params = Path(__file__).resolve().parents[2] / "config" / "car_park.yaml"
-    values = load_params(params)
-    config, settings = config_from_params(values, {"filter.seed": 0})
-    initial = choose_initial_pose("gps", read_inputs(bag, settings), config, settings, values)
+    bag, params, values, config, settings, _, initial = car_park(out, 0)
     log = open(out / "node.log", "w")
     node = start_node(params, initial, 0, args.reliability, log)
     context = Context()
