@@ -71,14 +71,23 @@ def _compound(motion, controls, dts):
     return mean[0], cov[0] + motion_models.step_jitter(motion)
 
 
-def associate(scans, config, run_dir: Path, gate: float):
-    """(scan index, landmark index, y (2,)) for each observation within ``gate`` of a run landmark."""
-    traj = np.loadtxt(run_dir / "trajectory.csv", delimiter=",", skiprows=1)
+def run_landmarks(run_dir: Path) -> np.ndarray:
+    """(M, 2) the final map of an ``online-em-slam run`` output."""
     with open(run_dir / "landmarks.csv") as f:
-        landmarks = np.array([[float(r["x"]), float(r["y"])] for r in csv.DictReader(f)])
+        return np.array([[float(r["x"]), float(r["y"])] for r in csv.DictReader(f)])
+
+
+def run_poses(run_dir: Path, stamps) -> np.ndarray:
+    """(K, 3) the run's base poses at ``stamps`` (the nearest trajectory row)."""
+    traj = np.loadtxt(run_dir / "trajectory.csv", delimiter=",", skiprows=1)
+    return traj[np.abs(traj[:, 0][None] - np.asarray(stamps)[:, None]).argmin(axis=1), 1:4]
+
+
+def associate(scans, config, poses: np.ndarray, landmarks: np.ndarray, gate: float):
+    """(scan index, landmark index, y (2,)) for each observation within ``gate`` of a landmark
+    seen from the run's pose at that scan; and the landmarks kept (seen at least 3 times)."""
     rows = []
-    for k, (stamp, obs, _, _) in enumerate(scans):
-        pose = traj[np.argmin(np.abs(traj[:, 0] - stamp)), 1:4]
+    for k, ((_, obs, _, _), pose) in enumerate(zip(scans, poses)):
         sp = sensor_poses(pose[None], config.sensor)[0]
         for y in np.stack([obs.ranges, obs.bearings], axis=1):
             d = np.linalg.norm(landmarks - inverse_observation(sp, y), axis=1)
@@ -91,7 +100,9 @@ def associate(scans, config, run_dir: Path, gate: float):
     return [(k, int(index[j]), y) for k, j, y in rows if keep[j]], landmarks[keep]
 
 
-def residuals(z, scans, rows, config, init, weights):
+def residuals(z, scans, whitening, rows, config, init, weights):
+    """Whitened residuals of prior, motion (``whitening`` W_k: W_k^T W_k = Sigma_k^-1) and
+    weighted observations; and the innovations and R of the observations."""
     n = len(scans) + 1
     X, L = z[:3 * n].reshape(n, 3), z[3 * n:].reshape(-1, 2)
     prior = (X[0] - init) / PRIOR_STD
@@ -102,7 +113,7 @@ def residuals(z, scans, rows, config, init, weights):
                     wrap_angle(X[1:, 2] - X[:-1, 2])], axis=1)
     e = rel - np.array([sc[2] for sc in scans])
     e[:, 2] = wrap_angle(e[:, 2])
-    motion = np.einsum("kij,kj->ki", _motion_whitening(scans), e)
+    motion = np.einsum("kij,kj->ki", whitening, e)
     k, j = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
     y = np.array([r[2] for r in rows])
     pred = predict_observation(sensor_poses(X[k + 1], config.sensor), L[j])
@@ -111,17 +122,6 @@ def residuals(z, scans, rows, config, init, weights):
     R = noise_covariance(config.noise, y[:, 0])
     white = np.einsum("kij,kj->ki", np.linalg.cholesky(np.linalg.inv(R)).transpose(0, 2, 1), nu)
     return np.concatenate([prior, motion.ravel(), (np.sqrt(weights)[:, None] * white).ravel()]), nu, R
-
-
-_WHITENING: dict = {}
-
-
-def _motion_whitening(scans):
-    """W_k with W_k^T W_k = Sigma_k^-1, computed once per run."""
-    key = id(scans)
-    if key not in _WHITENING:
-        _WHITENING[key] = np.array([np.linalg.cholesky(np.linalg.inv(sc[3])).T for sc in scans])
-    return _WHITENING[key]
 
 
 def sparsity(scans, rows, n_landmarks):
@@ -157,17 +157,17 @@ def gauss_newton(fun, z, pattern, max_iterations: int = 50, tol: float = 1e-9):
     return z, cost, iteration + 1
 
 
-def solve(scans, rows, landmarks, config, init, run_dir: Path, rounds: int = 5):
-    """IRLS over the mixture: each round solves the least squares with the weights of the last."""
-    traj = np.loadtxt(run_dir / "trajectory.csv", delimiter=",", skiprows=1)
-    poses = np.array([init] + [traj[np.argmin(np.abs(traj[:, 0] - sc[0])), 1:4] for sc in scans])
-    z = np.concatenate([poses.ravel(), landmarks.ravel()])
+def solve(scans, rows, poses, landmarks, config, init, rounds: int = 5):
+    """IRLS over the mixture, from the run's poses and landmarks: each round solves the least
+    squares with the weights of the last."""
+    z = np.concatenate([init, poses.ravel(), landmarks.ravel()])
+    whitening = np.array([np.linalg.cholesky(np.linalg.inv(sc[3])).T for sc in scans])
     weights = np.ones(len(rows))
     pattern = sparsity(scans, rows, len(landmarks))
     for _ in range(rounds):                          # the mixture's E-step, then the least-squares M-step
-        z, cost, iterations = gauss_newton(lambda v: residuals(v, scans, rows, config, init, weights)[0],
-                                           z, pattern)
-        _, nu, R = residuals(z, scans, rows, config, init, weights)
+        z, cost, iterations = gauss_newton(
+            lambda v: residuals(v, scans, whitening, rows, config, init, weights)[0], z, pattern)
+        _, nu, R = residuals(z, scans, whitening, rows, config, init, weights)
         _, resp = noise_loglik(config.noise, nu, R)
         weights = component_precision_weight(config.noise, resp)
     return z[3 * (len(scans) + 1):].reshape(-1, 2), cost, iterations
@@ -176,9 +176,7 @@ def solve(scans, rows, landmarks, config, init, run_dir: Path, rounds: int = 5):
 def distance_to(batch: np.ndarray, run_dir: Path) -> dict:
     """RMS distance of a run's map to the batch map (one-to-one matching within 1 m)."""
     run = json.loads((run_dir / "metrics.json").read_text())
-    with open(run_dir / "landmarks.csv") as f:
-        landmarks = np.array([[float(r["x"]), float(r["y"])] for r in csv.DictReader(f)])
-    m = landmark_metrics(landmarks, batch, gate=1.0)
+    m = landmark_metrics(run_landmarks(run_dir), batch, gate=1.0)
     return {"method": run["method"], "to_batch_rms": m.rmse, "matched": m.n_matched,
             "beacon_rmse": run["landmarks"]["rmse"]}
 
@@ -200,9 +198,10 @@ def main(argv=None) -> int:
     ip = run["initial_pose"]
     init = np.array([ip["x"], ip["y"], ip["yaw"]])
     scans = scans_and_motion(inputs.events, config)
-    rows, landmarks = associate(scans, config, run_dir, args.gate)
+    poses = run_poses(run_dir, [sc[0] for sc in scans])
+    rows, landmarks = associate(scans, config, poses, run_landmarks(run_dir), args.gate)
     n_obs = sum(len(sc[1].ranges) for sc in scans)
-    batch, cost, iterations = solve(scans, rows, landmarks, config, init, run_dir)
+    batch, cost, iterations = solve(scans, rows, poses, landmarks, config, init)
     metrics = landmark_metrics(batch, inputs.landmarks)
     out = {"bag": args.bag, "run": str(run_dir), "scans": len(scans), "observations": n_obs,
            "associated": len(rows), "gate": args.gate, "cost": cost, "iterations_last_round": iterations,
