@@ -28,6 +28,7 @@ setup(
         (share, ["package.xml"]),
         (os.path.join(share, "launch"), glob("launch/*.py")),
         (os.path.join(share, "config"), glob("config/*.yaml")),
+        (os.path.join(share, "config", "hand_tuned"), glob("config/hand_tuned/*.yaml")),
         (os.path.join(share, "rviz"), glob("rviz/*.rviz")),
     ] + tree(os.path.join("data", "kth"), share),
     # The core, the bag tools and the plots; ROS itself comes from apt on a real Jazzy

@@ -77,8 +77,9 @@ def write_noise_params(path, learned_parameters: dict, file_values: dict, learne
     import yaml  # noqa: PLC0415
     values = dict(file_values)
     values.update(learned_parameters)
-    shown = {k: learned[k] for k in ("sigma_range", "sigma_bearing", "rho", "range_growth", "mixture_weights",
-                                     "mixture_scales", "motion_scale", "observations", "motion_steps")}
+    tails = {"mixture": ("mixture_weights", "mixture_scales"), "student_t": ("dof",)}.get(learned["model"], ())
+    shown = {k: learned[k] for k in ("model", "sigma_range", "sigma_bearing", "rho", "range_growth", *tails,
+                                     "motion_scale", "observations", "motion_steps")}
     header = ("# Noise learned online by `online-em-slam run` (docs/METHOD.md, \"Noise learned online\").\n"
               "# The run's parameter file with the noise.* values and the motion noise stds it ended with\n"
               "# (learned ones once warmed up); pass it back with --params or to the node.\n"

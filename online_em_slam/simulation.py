@@ -67,6 +67,8 @@ class ScenarioConfig:
     rho: float = 0.01
     outlier_probability: float = 0.0
     outlier_scale: float = 25.0
+    # Student-t observation noise t_dof(0, R) instead of N(0, R) when set (heavy tails)
+    noise_dof: float | None = None
     # sigma_r(range) = sigma_range + range_growth * range (the thesis' context-dependent noise)
     range_growth: float = 0.0
     known_ids: bool = True
@@ -235,7 +237,11 @@ def drive_route(cfg: ScenarioConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def noise_config(cfg: ScenarioConfig) -> ObservationNoiseConfig:
-    """Observation noise section matching (S3); mixture weights (1-p, p) when outliers are on."""
+    """Observation noise section matching (S3); mixture weights (1-p, p) when outliers are on,
+    Student-t with ``noise_dof``."""
+    if cfg.noise_dof is not None:
+        return ObservationNoiseConfig(model="student_t", dof=cfg.noise_dof, sigma_range=cfg.sigma_range,
+                                      sigma_bearing=cfg.sigma_bearing, rho=cfg.rho, range_growth=cfg.range_growth)
     if cfg.outlier_probability > 0:
         return ObservationNoiseConfig(model="mixture", sigma_range=cfg.sigma_range,
                                       sigma_bearing=cfg.sigma_bearing, rho=cfg.rho,
@@ -256,6 +262,9 @@ def draw_noise(rng: np.random.Generator, cfg: ScenarioConfig, n_steps: int, n_la
     W = rng.standard_normal((n_steps, n_landmarks, 2)) @ np.linalg.cholesky(R).T   # W ~ N(0, R)
     outlier = rng.random((n_steps, n_landmarks)) < cfg.outlier_probability
     W = np.where(outlier[..., None], math.sqrt(cfg.outlier_scale) * W, W)          # N(0, s R)
+    if cfg.noise_dof is not None:                       # t_dof(0, R): N(0, R / tau), tau ~ Gamma(dof/2, dof/2)
+        tau = rng.gamma(0.5 * cfg.noise_dof, 2.0 / cfg.noise_dof, (n_steps, n_landmarks))
+        W = W / np.sqrt(tau)[..., None]
     return V, W, outlier
 
 

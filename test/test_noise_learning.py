@@ -210,18 +210,20 @@ def _assert_sane(slam: OnlineEMSlam) -> None:
                          ("motion_scale", limits.motion_scale_limits)):
         assert bounds[0] <= learned[name] <= bounds[1] and math.isfinite(learned[name]), name
     assert abs(sum(learned["mixture_weights"]) - 1.0) < 1e-9 and min(learned["mixture_weights"]) > 0
+    assert limits.dof_limits[0] <= learned["dof"] <= limits.dof_limits[1] or learned["model"] != "student_t"
     assert np.all(np.isfinite(slam.pose().mean)) and np.all(np.linalg.eigvalsh(slam.pose().covariance) >= -1e-12)
     SlamConfig(noise=slam._noise.noise_config()).validate()              # a valid R, never negative
 
 
-def _config() -> SlamConfig:
-    config = SlamConfig.from_dict({"filter": {"num_particles": 30}, "noise": {"model": "mixture"},
+def _config(model: str = "mixture") -> SlamConfig:
+    config = SlamConfig.from_dict({"filter": {"num_particles": 30}, "noise": {"model": model},
                                    "noise_learning": {"enabled": True, "warmup_observations": 10,
                                                       "warmup_steps": 5, "min_landmark_observations": 2}})
     return config
 
 
-def test_a_sensor_that_goes_silent_leaves_the_learned_noise_finite_and_bounded():
+@pytest.mark.parametrize("model", ["mixture", "student_t"])
+def test_a_sensor_that_goes_silent_leaves_the_learned_noise_finite_and_bounded(model):
     landmarks = np.array([[10.0, 5.0], [15.0, -4.0], [25.0, 3.0]])
     rng = np.random.default_rng(3)
     scans = []
@@ -234,12 +236,13 @@ def test_a_sensor_that_goes_silent_leaves_the_learned_noise_finite_and_bounded()
         ranges = np.hypot(d[:, 0], d[:, 1]) + 0.05 * rng.standard_normal(3)
         bearings = np.arctan2(d[:, 1], d[:, 0]) + 0.01 * rng.standard_normal(3)
         scans.append(Observations(ranges, bearings, np.arange(3)))
-    slam = _short_run(_config(), scans)
+    slam = _short_run(_config(model), scans)
     _assert_sane(slam)
     assert slam.learned_noise()["observations"] > 0
 
 
-def test_a_flood_of_identical_or_wild_observations_leaves_the_learned_noise_finite_and_bounded():
+@pytest.mark.parametrize("model", ["mixture", "student_t"])
+def test_a_flood_of_identical_or_wild_observations_leaves_the_learned_noise_finite_and_bounded(model):
     rng = np.random.default_rng(4)
     scans = []
     for k in range(90):
@@ -247,7 +250,7 @@ def test_a_flood_of_identical_or_wild_observations_leaves_the_learned_noise_fini
             scans.append(Observations(np.full(300, 8.0), np.full(300, 0.3), np.full(300, -1)))
         else:                   # 100 wild observations of 100 landmarks
             scans.append(Observations(rng.uniform(0.0, 30.0, 100), rng.uniform(-3.0, 3.0, 100), np.arange(100)))
-    slam = _short_run(_config(), scans)
+    slam = _short_run(_config(model), scans)
     _assert_sane(slam)
 
 

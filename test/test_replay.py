@@ -225,7 +225,7 @@ def test_replay_of_car_park_into_a_live_node_loses_nothing(tmp_path):
 
     bag = tmp_path / "car_park"
     counts = convert("car_park", bag, progress=False)
-    params_file = os.path.join(os.path.dirname(__file__), "..", "config", "car_park.yaml")
+    params_file = os.path.join(os.path.dirname(__file__), "..", "config", "hand_tuned", "car_park.yaml")
     values = load_params(params_file)
     config, settings = config_from_params(values)
     inputs = read_inputs(bag, settings)

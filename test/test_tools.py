@@ -285,7 +285,7 @@ def test_record_and_evaluate_car_park_match_run(ros, tmp_path):
     from online_em_slam.kth.convert import convert
 
     context, node, env = ros
-    params = str(Path(__file__).resolve().parent.parent / "config" / "car_park.yaml")
+    params = str(Path(__file__).resolve().parent.parent / "config" / "hand_tuned" / "car_park.yaml")
     bag = tmp_path / "car_park"
     convert("car_park", bag, progress=False)
     assert cli.main(["run", str(bag), "--params", params, "--seed", "0", "--output", str(tmp_path / "run"),

@@ -4,7 +4,7 @@
 
 The whole run as one nonlinear least-squares problem over every scan pose and
 every landmark, with the same models, noise and first-pose prior as the online
-runs (config/car_park.yaml, the initial pose from GPS that ``online-em-slam run``
+runs (config/hand_tuned/car_park.yaml, the initial pose from GPS that ``online-em-slam run``
 uses), solved to convergence by Gauss-Newton (finite-difference sparse Jacobian, so
 the solver shares no Jacobian code with the estimator):
 
@@ -185,7 +185,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("bag")
     parser.add_argument("run", help="an online-em-slam run output directory (association, initial guess)")
-    parser.add_argument("--params", default="config/car_park.yaml")
+    parser.add_argument("--params", default="config/hand_tuned/car_park.yaml")
     parser.add_argument("--gate", type=float, default=1.0)
     parser.add_argument("--output", default="docs/measurements/car_park_batch.json")
     parser.add_argument("--compare", nargs="*", default=[],

@@ -10,7 +10,7 @@ from online_em_slam.report import evaluate
 from online_em_slam.runner import choose_initial_pose, feed, make_estimator, read_inputs
 
 bag = sys.argv[1] if len(sys.argv) > 1 else "out/cp_bag"
-file_values = load_params("config/car_park.yaml")
+file_values = load_params("config/hand_tuned/car_park.yaml")
 config, settings = config_from_params(file_values)
 inputs = read_inputs(bag, settings)
 initial = choose_initial_pose("auto", inputs, config, settings, file_values)

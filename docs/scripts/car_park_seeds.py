@@ -2,7 +2,7 @@
 
     python docs/scripts/car_park_seeds.py BAG [--seeds 10] [--output results/car_park_seeds]
 
-Runs ``online-em-slam run`` on the converted Car Park bag with config/car_park.yaml
+Runs ``online-em-slam run`` on the converted Car Park bag with config/hand_tuned/car_park.yaml
 for each seed and method — online EM with the observed-information M-step (the
 default), online EM with the seed's complete-data M-step, EKF-SLAM and
 FastSLAM 2.0 — and tabulates beacons mapped, spurious landmarks, beacon RMSE
@@ -29,8 +29,8 @@ VARIANTS = {
 
 
 def params_file(out: Path, name: str, overrides: dict) -> Path:
-    """config/car_park.yaml with ``overrides`` appended under ros__parameters."""
-    text = Path("config/car_park.yaml").read_text()
+    """config/hand_tuned/car_park.yaml with ``overrides`` appended under ros__parameters."""
+    text = Path("config/hand_tuned/car_park.yaml").read_text()
     lines = "".join(f"    {key}: {value}\n" for key, value in overrides.items())
     path = out / f"params-{''.join(c for c in name if c.isalnum())}.yaml"
     path.write_text(text.rstrip("\n") + "\n" + lines)

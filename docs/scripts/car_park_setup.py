@@ -1,10 +1,10 @@
 """What the live Car Park scripts (soak.py, input_path_figures.py) share: the converted bag,
-config/car_park.yaml read for a seed, and the GPS-derived initial pose of ``online-em-slam run``."""
+config/hand_tuned/car_park.yaml read for a seed, and the GPS-derived initial pose of ``online-em-slam run``."""
 from __future__ import annotations
 
 from pathlib import Path
 
-PARAMS = Path(__file__).resolve().parents[2] / "config" / "car_park.yaml"
+PARAMS = Path(__file__).resolve().parents[2] / "config" / "hand_tuned" / "car_park.yaml"
 
 
 def car_park(out: Path, seed: int = 0):

@@ -116,7 +116,7 @@ class EkfSlam(BaselineFilter):
         self._state = initial_pose.astype(float).copy()
         self._P = np.diag(np.square(np.asarray(self.config.filter.initial_pose_std, dtype=float)))
         self._book = LandmarkBook()
-        self._gates = Gates.from_config(self.config.association)
+        self._gates = Gates.from_config(self.config.association, self.config.noise)
 
     def _predict(self, control: np.ndarray, dt: float) -> None:
         mean, F, Q = propagate(self.config.motion, self._state[None, :3], control, dt)

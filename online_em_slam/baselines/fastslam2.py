@@ -125,7 +125,7 @@ class FastSlam2(BaselineFilter):
         self._mu = np.zeros((n, 0, 2))
         self._sigma = np.zeros((n, 0, 2, 2))
         self._book = LandmarkBook()
-        self._gates = Gates.from_config(self.config.association)
+        self._gates = Gates.from_config(self.config.association, self.config.noise)
         self.last_ess = float(n)
 
     def _predict(self, control: np.ndarray, dt: float) -> None:

@@ -18,7 +18,7 @@ from dataclasses import Field, asdict, dataclass, field, fields, replace
 from typing import Any, Iterator
 
 MOTION_MODELS = ("bicycle", "acfr", "unicycle", "odometry")
-NOISE_MODELS = ("gaussian", "mixture")
+NOISE_MODELS = ("gaussian", "mixture", "student_t")
 SMOOTHERS = ("forward", "paris", "ancestry")
 EM_ALGORITHMS = ("online", "block", "block_averaged")
 M_STEPS = ("complete", "observed")
@@ -198,16 +198,19 @@ class SensorConfig:
 
 @dataclass
 class ObservationNoiseConfig:
-    """Range-bearing noise W: Gaussian N(0, R) or the outlier-robust mixture.
+    """Range-bearing noise W: Gaussian N(0, R), the outlier-robust mixture or Student-t.
 
     R = [[sigma_r^2, rho], [rho, sigma_b^2]] (seed notation: rho is the covariance
     term).  Mixture: sum_c weight_c N(0, scale_c R) (seed: 0.8 N(0,R) + 0.2 N(0,5R)).
+    Student-t: t_dof(0, R), a Gaussian whose precision is scaled by a Gamma(dof/2,
+    dof/2) variable: a tight core with heavy tails, R the core's scale; its
+    association gates are quantiles of the t (2 F(2, dof)), not of the chi-square.
     ``range_growth`` makes the range noise grow with range:
     sigma_r(range) = sigma_range + range_growth * range (thesis 003: context-dependent noise).
     """
 
-    model: str = param("gaussian", choices=NOISE_MODELS, doc="Observation noise: gaussian N(0,R) or mixture "
-                       "sum_c w_c N(0, s_c R) (outlier-robust).")
+    model: str = param("gaussian", choices=NOISE_MODELS, doc="Observation noise: gaussian N(0,R), mixture "
+                       "sum_c w_c N(0, s_c R) (outlier-robust) or student_t t_dof(0, R) (heavy-tailed).")
     sigma_range: float = param(0.5, 0.0, 100.0, lo_open=True, doc="Range noise std sigma_r (m).")
     sigma_bearing: float = param(math.pi / 60, 0.0, math.pi, lo_open=True, doc="Bearing noise std sigma_b (rad).")
     rho: float = param(0.01, doc="Range-bearing covariance term of R (m rad); |rho| < 0.999 sigma_range "
@@ -220,6 +223,8 @@ class ObservationNoiseConfig:
                                               "covariance scales, as many as weights.")
     range_growth: float = param(0.0, 0.0, 1.0, doc="Range std grows by this times the range: "
                                 "sigma_r + growth * range.")
+    dof: float = param(4.0, 0.5, 1e4, doc="Degrees of freedom of the student_t noise (small: heavy tails; "
+                       "large: Gaussian).")
 
     def validate(self, prefix: str = "noise") -> None:
         weights = _check_length(f"{prefix}.mixture_weights", self.mixture_weights)
@@ -344,7 +349,7 @@ class AssociationConfig:
         check_fields(self, prefix, {"new_landmark_probability": {"lo": self.gate_probability, "lo_open": False}})
 
 
-LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "range_growth", "motion_scale")
+LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "dof", "range_growth", "motion_scale")
 
 
 @dataclass
@@ -354,6 +359,7 @@ class NoiseLearningConfig:
     learn: the quantities estimated, a subset of ``LEARNABLE_NOISE``: ``range``
         (sigma_range), ``bearing`` (sigma_bearing), ``correlation`` (rho),
         ``mixture`` (weights and outlier scales; only with ``noise.model: mixture``),
+        ``dof`` (the Student-t's degrees of freedom; only with ``noise.model: student_t``),
         ``range_growth`` (sigma_r(r) = sigma_range + range_growth r; not by
         default: without range-dependent noise it trades off against
         sigma_range) and ``motion_scale`` (one factor on the whole motion noise
@@ -386,9 +392,10 @@ class NoiseLearningConfig:
 
     enabled: bool = param(False, doc="Learn the noise online by EM (noise_learning.learn); the learned values "
                           "are used once warmed up and shown on /diagnostics.")
-    learn: tuple[str, ...] = param(("range", "bearing", "correlation", "mixture", "motion_scale"),
+    learn: tuple[str, ...] = param(("range", "bearing", "correlation", "mixture", "dof", "motion_scale"),
                                    choices=LEARNABLE_NOISE, doc="Quantities learned: any of range, bearing, "
-                                   "correlation, mixture (with noise.model mixture), range_growth, motion_scale. "
+                                   "correlation, mixture (with noise.model mixture), dof (with noise.model "
+                                   "student_t), range_growth, motion_scale. "
                                    "To learn nothing set enabled false.")
     step_size_exponent: float = param(0.7, 0.5, 1.0, lo_open=True, doc="Step size gamma_n = n^-exponent of the "
                                       "noise statistics.")
@@ -418,12 +425,14 @@ class NoiseLearningConfig:
                                                        "ceiling of each learned outlier weight, floor <= ceiling.")
     mixture_scale_limits: tuple[float, float] = param((2.0, 1000.0), 1.0, 1e6, lo_open=True, doc="Floor and "
                                                       "ceiling of each learned outlier scale, floor <= ceiling.")
+    dof_limits: tuple[float, float] = param((3.0, 100.0), 0.5, 1e4, doc="Floor and ceiling of the learned "
+                                            "Student-t degrees of freedom, floor <= ceiling.")
     motion_scale_limits: tuple[float, float] = param((0.01, 100.0), 0.0, 1e4, lo_open=True, doc="Floor and "
                                                      "ceiling of the learned motion noise scale (factor on the "
                                                      "motion covariance), floor <= ceiling.")
 
     _LIMITS = ("sigma_range_limits", "sigma_bearing_limits", "range_growth_limits", "mixture_weight_limits",
-               "mixture_scale_limits", "motion_scale_limits")
+               "mixture_scale_limits", "dof_limits", "motion_scale_limits")
 
     def validate(self, prefix: str = "noise_learning") -> None:
         if isinstance(self.learn, str):

@@ -44,12 +44,15 @@ from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.optimize import brentq
+from scipy.special import digamma
 
 from ..models.angles import wrap_angle
 from ..config import ObservationNoiseConfig, SensorConfig, SlamConfig
 from .step import FilterStepData
 from ..models.motion import step_jitter
-from ..models.observation import inv_det_2x2, noise_covariance, noise_loglik
+from ..models.observation import (component_precision_weight, inv_det_2x2, mahalanobis_2d, noise_covariance,
+                                  noise_loglik)
 from .observed_information import motion_residual
 from ..filter.particles import weighted_pose_mean
 
@@ -58,7 +61,7 @@ from ..filter.particles import weighted_pose_mean
 MOTION_STDS = ("sigma_speed", "sigma_steering", "sigma_heading", "odometry_translation_std",
                "odometry_rotation_std", "odometry_translation_per_meter", "odometry_rotation_per_radian",
                "odometry_rotation_per_meter")
-OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture", "range_growth"})
+OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture", "dof", "range_growth"})
 # Range bins of the sigma_r(r) = a + b r fit, over [0, min(max_range, RANGE_BIN_REACH)]
 # (farther observations share the last bin): the bins only weigh, their means are exact.
 RANGE_BINS, RANGE_BIN_REACH = 16, 100.0
@@ -176,6 +179,25 @@ def _gauss_newton_step(means: np.ndarray, weights: np.ndarray, params: np.ndarra
     return step
 
 
+def student_t_dof(statistic: float, low: float, high: float) -> float:
+    """The dof maximising the expected complete-data log-likelihood of the Gamma(dof/2, dof/2)
+    precision scales, given statistic = E[log tau - tau] (<= -1): the root of
+    1 + log(dof/2) - psi(dof/2) + statistic = 0, within [low, high].
+
+    log(v/2) - psi(v/2) falls from +inf to 0 as v grows, so the root is unique.
+    """
+    def score(log_dof: float) -> float:
+        half = 0.5 * math.exp(log_dof)
+        return 1.0 + math.log(half) - float(digamma(half)) + statistic
+
+    lo, hi = math.log(low), math.log(high)
+    if score(lo) <= 0.0:
+        return low
+    if score(hi) >= 0.0:
+        return high                                  # the tails are no heavier than a Gaussian's
+    return float(math.exp(brentq(score, lo, hi, xtol=1e-10)))
+
+
 def map_uncertainty(R: np.ndarray, n_obs: np.ndarray) -> np.ndarray:
     """H Sigma_k H^T ~ R / (n_k - 1) (P, 2, 2): the landmark's estimate averages its earlier
     observations, seen through h.
@@ -281,6 +303,8 @@ class NoiseLearner:
         learn = set(self.settings.learn) if self.settings.enabled else set()
         if config.noise.model != "mixture":
             learn.discard("mixture")                     # nothing to learn in one Gaussian
+        if config.noise.model != "student_t":
+            learn.discard("dof")
         self.learn = learn
         self.observations = StochasticAverage(self.settings.step_size_exponent)
         self.motion = StochasticAverage(self.settings.motion_step_size_exponent)
@@ -309,9 +333,12 @@ class NoiseLearner:
         if not self.learn:
             return None
         noise = self._in_use
-        return {"noise": np.array([noise.sigma_range, noise.range_growth, noise.sigma_bearing, noise.rho,
-                                   self.scale_in_use]),
-                "noise_mixture": np.array([noise.mixture_weights, noise.mixture_scales], dtype=float)}
+        values = {"noise": np.array([noise.sigma_range, noise.range_growth, noise.sigma_bearing, noise.rho,
+                                     self.scale_in_use]),
+                  "noise_mixture": np.array([noise.mixture_weights, noise.mixture_scales], dtype=float)}
+        if noise.model == "student_t":
+            values["noise_dof"] = np.array(noise.dof)
+        return values
 
     # ------------------------------------------------------------ what the estimator uses
     @property
@@ -365,30 +392,44 @@ class NoiseLearner:
                 self._in_use = self.estimate if self.observation_noise_warm else self._start
 
     def _observation_statistics(self, data: FilterStepData, n_obs: np.ndarray):
-        """(the step's mean of [E_bb, rho term, responsibilities, r_c q], ranges, E_rr), from (E)."""
+        """(the step's mean of [E_bb, rho term, tail statistics], ranges, E_rr), from (E)."""
         use = (np.asarray(n_obs) >= self.settings.min_landmark_observations) & self._configured_R(data)
         if not use.any():
             return None
-        # Responsibilities and outlier scales under the latest estimate (the E-step of
-        # online EM runs at the current parameter, also while the filter still warms up).
+        # Latent variables under the latest estimate (the E-step of online EM runs at the
+        # current parameter, also while the filter still warms up).
         noise = self.estimate
         ranges = data.y[use, 0]
         nu, H, R, w = data.nu[:, use], data.H[:, use], noise_covariance(noise, ranges), data.weights
         map_term = map_uncertainty(R, np.asarray(n_obs)[use])                          # (P, 2, 2)
-        _, resp = noise_loglik(noise, nu, np.broadcast_to(R + map_term, H.shape))     # (N, P, C)
-        scales = np.asarray(noise.mixture_scales if noise.model == "mixture" else (1.0,), dtype=float)
+        S = np.broadcast_to(R + map_term, H.shape)
+        _, latent = noise_loglik(noise, nu, S)                                         # (N, P, C)
         outer = nu[..., :, None] * nu[..., None, :] - map_term
-        E = np.einsum("n,np,npij->pij", w, resp @ (1.0 / scales), outer)              # (E), (P, 2, 2)
-        R_inv, _ = inv_det_2x2(R)
-        q = 0.5 * np.einsum("pij,npji->np", R_inv, outer)                             # tr(R^-1 outer) / 2
+        E = np.einsum("n,np,npij->pij", w, component_precision_weight(noise, latent), outer)  # (E), (P, 2, 2)
         a, b = noise.sigma_range, noise.range_growth
         sample = np.concatenate([
             [E[:, 1, 1].mean(), (a * E[:, 0, 1] / (a + b * ranges)).mean()],     # rho scales with sigma_r(r)
-            np.einsum("n,npc->pc", w, resp).mean(axis=0),                            # mean responsibilities
-            np.einsum("n,npc,np->pc", w, resp, q).mean(axis=0)])
+            self._tail_statistics(noise, w, latent, outer, R, mahalanobis_2d(nu, S)[0])])
         if not (np.all(np.isfinite(sample)) and np.all(np.isfinite(E[:, 0, 0]))):
             return None
         return sample, ranges, E[:, 0, 0]
+
+    @staticmethod
+    def _tail_statistics(noise, w: np.ndarray, latent: np.ndarray, outer: np.ndarray, R: np.ndarray,
+                         d2: np.ndarray) -> np.ndarray:
+        """The statistics of the tails' parameters, averaged over the scan's observations.
+
+        Mixture: mean responsibilities r_c and r_c q, q = tr(R^-1 outer) / 2 (weights and
+        outlier scales).  Student-t: E[log tau - tau | nu] with tau | nu ~ Gamma((dof + 2)/2,
+        (dof + d2)/2), so E[log tau] = psi((dof + 2)/2) - log((dof + d2)/2) (the dof).
+        """
+        if noise.model == "student_t":
+            log_tau = digamma(0.5 * noise.dof + 1.0) - np.log(0.5 * (noise.dof + d2))
+            return np.array([np.einsum("n,np->p", w, log_tau - latent[..., 0]).mean()])
+        R_inv, _ = inv_det_2x2(R)
+        q = 0.5 * np.einsum("pij,npji->np", R_inv, outer)                             # tr(R^-1 outer) / 2
+        return np.concatenate([np.einsum("n,npc->pc", w, latent).mean(axis=0),
+                               np.einsum("n,npc,np->pc", w, latent, q).mean(axis=0)])
 
     def _configured_R(self, data: FilterStepData) -> np.ndarray:
         """Observations whose R is the one in use; those with their own range_std /
@@ -424,17 +465,16 @@ class NoiseLearner:
     def _scan_terms(self, data: FilterStepData, use: np.ndarray, n_obs: np.ndarray, pose: np.ndarray):
         """(H_x (P, 2, 3), posterior mean innovation (P, 2), noise covariance (P, 2, 2)) of the scan.
 
-        The noise is the learned R (an outlier's divided by its responsibility-weighted
-        precision factor, so it weighs as in the likelihood) plus the map term H Sigma H^T.
+        The noise is the learned R (an outlier's divided by its E-step precision factor,
+        so it weighs as in the likelihood) plus the map term H Sigma H^T.
         """
         w, noise = data.weights, self.estimate
         nu = np.einsum("n,npi->pi", w, data.nu[:, use])
         H = np.einsum("n,npij->pij", w, data.H[:, use])
         cov = noise_covariance(noise, data.y[use, 0])
         map_term = map_uncertainty(cov, n_obs)
-        _, resp = noise_loglik(noise, nu, cov + map_term)
-        scales = np.asarray(noise.mixture_scales if noise.model == "mixture" else (1.0,), dtype=float)
-        cov = cov / (resp @ (1.0 / scales))[:, None, None] + map_term
+        _, latent = noise_loglik(noise, nu, cov + map_term)
+        cov = cov / component_precision_weight(noise, latent)[:, None, None] + map_term
         return pose_jacobian_from(H, pose, self.config.sensor), nu, cov
 
     # ------------------------------------------------------------ M-step
@@ -458,6 +498,8 @@ class NoiseLearner:
         values = dict(sigma_range=a, range_growth=b, sigma_bearing=sb, rho=rho)
         if "mixture" in self.learn:
             values.update(self._mixture_m_step(stats[2:]))
+        if "dof" in self.learn:
+            values["dof"] = student_t_dof(float(stats[2]), *s.dof_limits)
         return replace(noise, **values)
 
     def _mixture_m_step(self, stats: np.ndarray) -> dict:
@@ -483,7 +525,7 @@ class NoiseLearner:
                 "observation_noise_in_use": self.observation_noise_warm and bool(self.learn & OBSERVATION_QUANTITIES),
                 "motion_scale_in_use": "motion_scale" in self.learn and self.motion_scale_warm,
                 "sigma_range": noise.sigma_range, "sigma_bearing": noise.sigma_bearing, "rho": noise.rho,
-                "range_growth": noise.range_growth, "model": noise.model,
+                "range_growth": noise.range_growth, "model": noise.model, "dof": noise.dof,
                 "mixture_weights": list(noise.mixture_weights), "mixture_scales": list(noise.mixture_scales),
                 "motion_scale": self.scale_estimate}
 
@@ -493,7 +535,7 @@ class NoiseLearner:
         noise = self._in_use
         values = {"noise.model": noise.model, "noise.sigma_range": noise.sigma_range,
                   "noise.sigma_bearing": noise.sigma_bearing, "noise.rho": noise.rho,
-                  "noise.range_growth": noise.range_growth,
+                  "noise.range_growth": noise.range_growth, "noise.dof": noise.dof,
                   "noise.mixture_weights": [float(v) for v in noise.mixture_weights],
                   "noise.mixture_scales": [float(v) for v in noise.mixture_scales]}
         root = math.sqrt(self.motion_scale())

@@ -2,19 +2,22 @@
 
 Shared by the online EM core and the baselines so that every method sees the
 same gates.  The cost of pairing observation o with landmark k is its negative
-Gaussian log-likelihood d2 + log det S (d2 the squared Mahalanobis distance of
-the innovation, S its covariance).  At most one observation per landmark per
-scan: the pairing is a linear assignment (scipy's Hungarian solver).
+log-likelihood: d2 + log det S for Gaussian noise (d2 the squared Mahalanobis
+distance of the innovation, S its covariance), (dof + 2) log(1 + d2/dof) +
+log det S for Student-t noise, whose gates are quantiles of d2's own law
+(2 F(2, dof) instead of chi-square(2)).  At most one observation per landmark
+per scan: the pairing is a linear assignment (scipy's Hungarian solver).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2
+from scipy.stats import chi2, f as f_dist
 
-from ..config import AssociationConfig
+from ..config import AssociationConfig, ObservationNoiseConfig
 from ..models.observation import innovation, mahalanobis_2d
 
 NEW_LANDMARK = -1
@@ -22,17 +25,33 @@ AMBIGUOUS = -2
 _FORBIDDEN = 1e12
 
 
-@dataclass
+@dataclass(frozen=True)
 class Gates:
-    """Squared-Mahalanobis thresholds derived from the chi-square(2) probabilities."""
+    """Squared-Mahalanobis thresholds at the gate probabilities of d2's law under the noise
+    model (chi-square(2); 2 F(2, dof) for Student-t noise, ``dof`` None otherwise)."""
 
     associate: float
     create: float
+    dof: float | None = None
 
     @classmethod
-    def from_config(cls, config: AssociationConfig) -> "Gates":
-        return cls(float(chi2.ppf(config.gate_probability, 2)),
-                   float(chi2.ppf(config.new_landmark_probability, 2)))
+    def from_config(cls, config: AssociationConfig, noise: ObservationNoiseConfig | None = None) -> "Gates":
+        dof = float(noise.dof) if noise is not None and noise.model == "student_t" else None
+        return _gates(config.gate_probability, config.new_landmark_probability, dof)
+
+    def cost(self, d2: np.ndarray, logdet: np.ndarray) -> np.ndarray:
+        """Twice the negative log-likelihood of an innovation, up to a constant."""
+        if self.dof is None:
+            return d2 + logdet
+        return (self.dof + 2.0) * np.log1p(d2 / self.dof) + logdet
+
+
+@lru_cache(maxsize=64)
+def _gates(associate: float, create: float, dof: float | None) -> Gates:
+    """Quantiles of d2: chi-square(2), or 2 F(2, dof) (nu^T R^-1 nu / 2 of a 2-D t is F(2, dof))."""
+    if dof is None:
+        return Gates(float(chi2.ppf(associate, 2)), float(chi2.ppf(create, 2)))
+    return Gates(2.0 * float(f_dist.ppf(associate, 2, dof)), 2.0 * float(f_dist.ppf(create, 2, dof)), dof)
 
 
 def associate(observations: np.ndarray, predicted: np.ndarray, innovation_cov: np.ndarray,
@@ -58,7 +77,7 @@ def associate(observations: np.ndarray, predicted: np.ndarray, innovation_cov: n
     nu = innovation(np.broadcast_to(observations[:, None, :], predicted.shape).copy(), predicted)
     d2, logdet = mahalanobis_2d(nu, innovation_cov)
     d2 = np.where(np.isfinite(d2), d2, np.inf)
-    cost = np.where(d2 < gates.associate, d2 + logdet, _FORBIDDEN)
+    cost = np.where(d2 < gates.associate, gates.cost(d2, logdet), _FORBIDDEN)
     rows, cols = linear_sum_assignment(cost)
     assignment = np.full(n_obs, AMBIGUOUS, dtype=int)
     ok = cost[rows, cols] < _FORBIDDEN

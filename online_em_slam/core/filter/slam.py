@@ -84,7 +84,6 @@ class OnlineEMSlam:
         chosen by ``em.m_step`` (baselines plug their map update in here)."""
         self.config = (config or SlamConfig()).validate()
         self._m_step_factory = m_step_factory or make_m_step
-        self._gates = Gates.from_config(self.config.association)
         self.drops: Counter[str] = Counter()
         self.reset(initial_pose, stamp)
 
@@ -456,7 +455,8 @@ class OnlineEMSlam:
                 report.dropped[reason] = report.dropped.get(reason, 0) + n
                 self.drops[reason] += n
 
-        plan = plan_associations(obs.ids, y, self._map.rows_of_ids, candidates, self._gates, drop)
+        gates = Gates.from_config(self.config.association, self._noise.noise_config())   # learned dof moves them
+        plan = plan_associations(obs.ids, y, self._map.rows_of_ids, candidates, gates, drop)
         new_rows = self._create_landmarks(plan, y, mean_sensor, drop)
         report.n_created = int(new_rows.size)
         return (np.concatenate([plan.update_obs, plan.create_obs[:new_rows.size]]),
@@ -601,6 +601,8 @@ class OnlineEMSlam:
         sigma_r, growth, sigma_b, rho, scale = (float(v) for v in arrays["noise"])
         noise = replace(configured, sigma_range=sigma_r, range_growth=growth, sigma_bearing=sigma_b, rho=rho,
                         mixture_weights=tuple(map(float, weights)), mixture_scales=tuple(map(float, scales)))
+        if "noise_dof" in arrays:
+            noise = replace(noise, dof=float(arrays["noise_dof"]))
         self._noise.start_from(noise, scale)
 
     def save_map(self, path: str) -> None:

@@ -50,8 +50,10 @@ ROW_FIELDS = {
 _OTHER_FIELDS = {"version": (), "pose": (3,)}
 # Optional: the noise in use when learned online (noise_learning.py), restored on load:
 # noise = (sigma_range, range_growth, sigma_bearing, rho, motion_scale), noise_mixture =
-# (mixture weights, mixture scales) as a (2, C) array.
+# (mixture weights, mixture scales) as a (2, C) array, and with Student-t noise
+# noise_dof (), its degrees of freedom.
 _NOISE_FIELDS = ("noise", "noise_mixture")
+_DOF_FIELD = "noise_dof"
 MAX_MIXTURE_COMPONENTS = 16
 _NUMERIC = {"float": "biuf", "count": "biu", "id": "iu", "flag": "biu"}
 _KIND_TEXT = {"float": "numbers", "count": "integers", "id": "integer ids", "flag": "booleans"}
@@ -219,7 +221,18 @@ def check_map(arrays: dict, max_landmarks: int = MAX_LANDMARKS) -> dict[str, np.
         raise MapFileError(f"{present[0]} without {[n for n in _NOISE_FIELDS if n not in present][0]}")
     if present:
         checked.update(_check_noise(np.asarray(arrays["noise"]), np.asarray(arrays["noise_mixture"])))
+    if _DOF_FIELD in arrays:
+        if not present:
+            raise MapFileError(f"{_DOF_FIELD} without noise")
+        checked[_DOF_FIELD] = _check_dof(np.asarray(arrays[_DOF_FIELD]))
     return checked
+
+
+def _check_dof(dof: np.ndarray) -> np.ndarray:
+    """The Student-t degrees of freedom: one finite number > 0."""
+    if dof.shape != () or dof.dtype.kind not in "iuf" or not np.isfinite(dof) or dof <= 0:
+        raise MapFileError(f"{_DOF_FIELD} = {dof.tolist()} must be one finite number > 0")
+    return dof.astype(float)
 
 
 # ----------------------------------------------------------------- files
@@ -233,8 +246,8 @@ def write_map(path, arrays: dict) -> None:
 
 
 def _expected_shape(name: str, m: int | None) -> tuple | None:
-    if name in _NOISE_FIELDS:
-        return (5,) if name == "noise" else None
+    if name in _NOISE_FIELDS or name == _DOF_FIELD:
+        return {"noise": (5,), _DOF_FIELD: ()}.get(name)
     if name in _OTHER_FIELDS:
         return _OTHER_FIELDS[name]
     return None if m is None else (m,) + ROW_FIELDS[name][0]
@@ -274,7 +287,7 @@ def _read_arrays(path: str, max_landmarks: int) -> dict[str, np.ndarray]:
         if arrays["theta"].ndim != 2 or arrays["theta"].shape[1] != 2:     # M comes from theta: check it first
             raise MapFileError(f"theta has shape {arrays['theta'].shape}, expected (M, 2)")
         m = arrays["theta"].shape[0]
-        for name in (*ROW_FIELDS, "pose", *(n for n in _NOISE_FIELDS if n in present)):
+        for name in (*ROW_FIELDS, "pose", *(n for n in (*_NOISE_FIELDS, _DOF_FIELD) if n in present)):
             if name not in arrays:
                 arrays[name] = _read_member(archive, name, m, max_landmarks)
         return arrays

@@ -149,16 +149,20 @@ def gaussian_loglik(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
 
 def noise_loglik(noise: ObservationNoiseConfig, nu: np.ndarray, S: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Log-likelihood of innovations and each mixture component's responsibility.
+    """Log-likelihood of innovations and the E-step of the noise's latent variable.
 
-    Gaussian: log N(nu; 0, S), responsibilities all 1 (one component).
-    Mixture:  log sum_c weight_c N(nu; 0, scale_c S); responsibilities are the
-    posterior component probabilities, the E-step of the latent component.
-    Returns (loglik (...), responsibilities (..., C)).
+    Gaussian:  log N(nu; 0, S); latent all 1 (one component).
+    Mixture:   log sum_c weight_c N(nu; 0, scale_c S); latent (..., C) the
+               responsibilities, the posterior component probabilities.
+    Student-t: log t_dof(nu; 0, S); latent (..., 1) the posterior mean of the
+               precision scale tau ~ Gamma(dof/2, dof/2), u = (dof + 2) / (dof + d2).
+    Returns (loglik (...), latent (..., C)).
     """
     if noise.model == "gaussian":
         return gaussian_loglik(nu, S), np.ones(nu.shape[:-1] + (1,))
     d2, logdet = mahalanobis_2d(nu, S)
+    if noise.model == "student_t":
+        return student_t_loglik(d2, logdet, noise.dof), student_t_weight(d2, noise.dof)[..., None]
     scales = np.asarray(noise.mixture_scales, dtype=float)
     log_weights = np.log(np.maximum(np.asarray(noise.mixture_weights, dtype=float), 1e-300))
     comp = (log_weights - _LOG_2PI - 0.5 * (d2[..., None] / scales + logdet[..., None]
@@ -168,12 +172,25 @@ def noise_loglik(noise: ObservationNoiseConfig, nu: np.ndarray, S: np.ndarray
     return total, np.exp(comp - total[..., None])
 
 
+def student_t_loglik(d2: np.ndarray, logdet: np.ndarray, dof: float) -> np.ndarray:
+    """log t_dof(nu; 0, S) in 2-D from d2 = nu^T S^-1 nu and log det S:
+    log Gamma((dof+2)/2) - log Gamma(dof/2) - log(dof pi) - logdet/2 - (dof+2)/2 log(1 + d2/dof)."""
+    const = math.lgamma(0.5 * dof + 1.0) - math.lgamma(0.5 * dof) - math.log(dof * math.pi)
+    return const - 0.5 * logdet - 0.5 * (dof + 2.0) * np.log1p(d2 / dof)
+
+
+def student_t_weight(d2: np.ndarray, dof: float) -> np.ndarray:
+    """E[tau | nu] = (dof + 2) / (dof + d2): the precision factor an innovation gets in EM."""
+    return (dof + 2.0) / (dof + d2)
+
+
 def component_precision_weight(noise: ObservationNoiseConfig, responsibilities: np.ndarray) -> np.ndarray:
     """sum_c r_c / scale_c: the factor multiplying R^-1 in the expected quadratic form.
 
     With the mixture, the complete-data log-likelihood is quadratic given the
-    component; its expectation weights R_c^-1 = R^-1 / scale_c by r_c.
+    component; its expectation weights R_c^-1 = R^-1 / scale_c by r_c.  With the
+    Student-t it is quadratic given tau, and the factor is E[tau | nu] (the latent).
     """
-    if noise.model == "gaussian":
+    if noise.model != "mixture":
         return responsibilities[..., 0]
     return responsibilities @ (1.0 / np.asarray(noise.mixture_scales, dtype=float))
