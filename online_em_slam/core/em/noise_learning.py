@@ -380,10 +380,11 @@ class NoiseLearner:
         ``n_obs`` (P,): observation counts of the observed landmarks (this one
         included).
         """
+        use = (np.asarray(n_obs) >= self.settings.min_landmark_observations) & self._configured_R(data)
         if "motion_scale" in self.learn:
-            self._update_motion(data, n_obs)             # every step: silence is part of the motion
+            self._update_motion(data, n_obs, use)        # every step: silence is part of the motion
         if self.learn & OBSERVATION_QUANTITIES and data.rows.size:
-            statistics = self._observation_statistics(data, n_obs)
+            statistics = self._observation_statistics(data, n_obs, use)
             if statistics is not None:
                 sample, ranges, squared = statistics
                 self.observations.blend(sample, ranges.size)
@@ -391,9 +392,9 @@ class NoiseLearner:
                 self.estimate = self._observation_m_step(self.observations.value)
                 self._in_use = self.estimate if self.observation_noise_warm else self._start
 
-    def _observation_statistics(self, data: FilterStepData, n_obs: np.ndarray):
-        """(the step's mean of [E_bb, rho term, tail statistics], ranges, E_rr), from (E)."""
-        use = (np.asarray(n_obs) >= self.settings.min_landmark_observations) & self._configured_R(data)
+    def _observation_statistics(self, data: FilterStepData, n_obs: np.ndarray, use: np.ndarray):
+        """(the step's mean of [E_bb, rho term, tail statistics], ranges, E_rr), from (E), over the
+        observations ``use`` (landmarks seen often enough, the configured R)."""
         if not use.any():
             return None
         # Latent variables under the latest estimate (the E-step of online EM runs at the
@@ -437,7 +438,7 @@ class NoiseLearner:
         expected = noise_covariance(self._in_use, data.y[:, 0])
         return np.all(np.isclose(data.R, expected, rtol=1e-9, atol=1e-15), axis=(-1, -2))
 
-    def _update_motion(self, data: FilterStepData, n_obs: np.ndarray) -> None:
+    def _update_motion(self, data: FilterStepData, n_obs: np.ndarray, use: np.ndarray) -> None:
         """Push the step into the window; at a scan of known landmarks, blend (M) of the window."""
         scale = self.motion_scale()
         jitter = step_jitter(self.config.motion)
@@ -447,7 +448,6 @@ class NoiseLearner:
         self.window.append(MotionStep(c=motion_residual(data.motion_mean, pose), F=data.motion_jacobian.copy(),
                                       Q=(data.motion_cov - jitter) / scale, J=jitter,
                                       P=np.einsum("n,ni,nj->ij", data.weights, dev, dev)))
-        use = (np.asarray(n_obs) >= self.settings.min_landmark_observations) & self._configured_R(data)
         if len(self.window) < self.window.maxlen or not use.any() or not self._observation_noise_settled:
             return
         sample = prediction_statistic(list(self.window), *self._scan_terms(data, use, np.asarray(n_obs)[use], pose))

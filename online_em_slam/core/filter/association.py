@@ -10,12 +10,13 @@ per scan: the pairing is a linear assignment (scipy's Hungarian solver).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2, f as f_dist
+from scipy.stats import chi2
 
 from ..config import AssociationConfig, ObservationNoiseConfig
 from ..models.observation import innovation, mahalanobis_2d
@@ -46,12 +47,22 @@ class Gates:
         return (self.dof + 2.0) * np.log1p(d2 / self.dof) + logdet
 
 
-@lru_cache(maxsize=64)
+@lru_cache(maxsize=8)
+def _chi2_gates(associate: float, create: float) -> Gates:
+    return Gates(float(chi2.ppf(associate, 2)), float(chi2.ppf(create, 2)))
+
+
 def _gates(associate: float, create: float, dof: float | None) -> Gates:
-    """Quantiles of d2: chi-square(2), or 2 F(2, dof) (nu^T R^-1 nu / 2 of a 2-D t is F(2, dof))."""
+    """Quantiles of d2: chi-square(2), or of 2 F(2, dof) (nu^T R^-1 nu / 2 of a 2-D t is F(2, dof)),
+    whose CDF 1 - (1 + d2/dof)^(-dof/2) inverts in closed form (a learned dof moves every scan)."""
     if dof is None:
-        return Gates(float(chi2.ppf(associate, 2)), float(chi2.ppf(create, 2)))
-    return Gates(2.0 * float(f_dist.ppf(associate, 2, dof)), 2.0 * float(f_dist.ppf(create, 2, dof)), dof)
+        return _chi2_gates(associate, create)
+    return Gates(student_t_quantile(associate, dof), student_t_quantile(create, dof), dof)
+
+
+def student_t_quantile(probability: float, dof: float) -> float:
+    """The d2 below which a 2-D t_dof innovation falls with ``probability``: dof ((1-p)^(-2/dof) - 1)."""
+    return float(dof * math.expm1(-2.0 / dof * math.log1p(-probability)))
 
 
 def associate(observations: np.ndarray, predicted: np.ndarray, innovation_cov: np.ndarray,
