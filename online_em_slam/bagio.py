@@ -1,7 +1,8 @@
 """Reading ROS 2 bags with rosbags (pure Python, no rclpy import).
 
 Used by the offline runner and the tests: :func:`read_bag` yields deserialized
-rosbags messages in log-time order with the stamp to use for each.
+rosbags messages in log-time order with the stamp to use for each;
+:func:`write_bag` writes a small MCAP bag from messages (the tests' bags).
 """
 from __future__ import annotations
 
@@ -22,6 +23,21 @@ def message_stamp(msg, log_time_ns: int) -> float:
     if stamp is not None:
         return stamp.sec + stamp.nanosec * 1e-9
     return log_time_ns * 1e-9
+
+
+def write_bag(path, messages: Iterable[tuple[int, str, str, object]], typestore) -> int:
+    """Write (log time ns, topic, type name, message) in the given order to an MCAP bag at ``path``,
+    one connection per topic (made at its first message); returns the number written."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    written = 0
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections = {}
+        for log_time_ns, topic, msgtype, msg in messages:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, msgtype, typestore=typestore)
+            writer.write(connections[topic], int(log_time_ns), typestore.serialize_cdr(msg, msgtype))
+            written += 1
+    return written
 
 
 def _open(path):

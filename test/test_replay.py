@@ -27,8 +27,7 @@ N_CLOUDS = 40
 
 def _write_small_bag(path):
     """/control at 200 Hz (2 s) and /landmark_observations at 20 Hz, plus /tf_static."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
+    from online_em_slam.bagio import write_bag
     from online_em_slam.cloud import OBSERVATION_FIELDS, encode
     from online_em_slam.kth.beacons import observation_columns
     from online_em_slam.kth.convert import jazzy_typestore
@@ -70,13 +69,7 @@ def _write_small_bag(path):
     events.append((10_000_000_000, 0, "/tf_static", "tf2_msgs/msg/TFMessage", T["tf2_msgs/msg/TFMessage"](
         transforms=[tf])))
     events.sort(key=lambda e: (e[0], e[1]))
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        conns = {}
-        for _, _, topic, msgtype, _ in events:
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=ts)
-        for ns, _, topic, msgtype, msg in events:
-            writer.write(conns[topic], ns, ts.serialize_cdr(msg, msgtype))
+    write_bag(path, ((ns, topic, msgtype, msg) for ns, _, topic, msgtype, msg in events), ts)
 
 
 def _tf2_available() -> bool:

@@ -26,8 +26,7 @@ LATE = (T0 + 10.0, 3.0)      # one more cloud, stamped T0 + 10 s, logged 3 s lat
 def _write_bag(path) -> int:
     """/control at 40 Hz for 60 s, /landmark_observations at 5 Hz for 5 s (logged 0.5 s after their
     stamps), one cloud logged 3 s after its stamp; returns the number of input messages."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
+    from online_em_slam.bagio import write_bag
     from online_em_slam.cloud import OBSERVATION_FIELDS, encode
     from online_em_slam.kth.beacons import observation_columns
     from online_em_slam.kth.convert import jazzy_typestore
@@ -60,13 +59,7 @@ def _write_bag(path) -> int:
                  for t in clouds]
     messages.append((LATE[0] + LATE[1], "/landmark_observations", "sensor_msgs/msg/PointCloud2", cloud(LATE[0])))
     messages.sort(key=lambda m: m[0])
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        conns = {}
-        for log_time, topic, msgtype, msg in messages:
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=ts)
-            writer.write(conns[topic], int(round(log_time * 1e9)), ts.serialize_cdr(msg, msgtype))
-    return len(messages)
+    return write_bag(path, ((int(round(t * 1e9)), topic, msgtype, msg) for t, topic, msgtype, msg in messages), ts)
 
 
 @pytest.fixture(scope="module")

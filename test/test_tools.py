@@ -131,8 +131,7 @@ def _truth_track():
 
 
 def _write_truth_bag(path, track, landmarks):
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
+    from online_em_slam.bagio import write_bag
     from online_em_slam.cloud import encode
     from online_em_slam.evaluation import sensor_points
     from online_em_slam.kth.convert import jazzy_typestore
@@ -175,12 +174,7 @@ def _write_truth_bag(path, track, landmarks):
             events.append((t, "/ground_truth/position", "geometry_msgs/msg/PointStamped",
                            T["geometry_msgs/msg/PointStamped"](header=header(t, "gps"), point=T[
                                "geometry_msgs/msg/Point"](x=gps[k, 0], y=gps[k, 1], z=0.0))))
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        conns = {}
-        for t, topic, msgtype, msg in events:
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=ts)
-            writer.write(conns[topic], int(round(t * 1e9)), ts.serialize_cdr(msg, msgtype))
+    write_bag(path, ((int(round(t * 1e9)), topic, msgtype, msg) for t, topic, msgtype, msg in events), ts)
 
 
 def _landmark_cloud(xy, n_obs):

@@ -410,14 +410,14 @@ class NoiseLearner:
         a, b = noise.sigma_range, noise.range_growth
         sample = np.concatenate([
             [E[:, 1, 1].mean(), (a * E[:, 0, 1] / (a + b * ranges)).mean()],     # rho scales with sigma_r(r)
-            self._tail_statistics(noise, w, latent, outer, R, mahalanobis_2d(nu, S)[0])])
+            self._tail_statistics(noise, w, latent, outer, R, nu, S)])
         if not (np.all(np.isfinite(sample)) and np.all(np.isfinite(E[:, 0, 0]))):
             return None
         return sample, ranges, E[:, 0, 0]
 
     @staticmethod
     def _tail_statistics(noise, w: np.ndarray, latent: np.ndarray, outer: np.ndarray, R: np.ndarray,
-                         d2: np.ndarray) -> np.ndarray:
+                         nu: np.ndarray, S: np.ndarray) -> np.ndarray:
         """The statistics of the tails' parameters, averaged over the scan's observations.
 
         Mixture: mean responsibilities r_c and r_c q, q = tr(R^-1 outer) / 2 (weights and
@@ -425,6 +425,7 @@ class NoiseLearner:
         (dof + d2)/2), so E[log tau] = psi((dof + 2)/2) - log((dof + d2)/2) (the dof).
         """
         if noise.model == "student_t":
+            d2, _ = mahalanobis_2d(nu, S)
             log_tau = digamma(0.5 * noise.dof + 1.0) - np.log(0.5 * (noise.dof + d2))
             return np.array([np.einsum("n,np->p", w, log_tau - latent[..., 0]).mean()])
         R_inv, _ = inv_det_2x2(R)
