@@ -161,14 +161,15 @@ def landmark_table(msg: PointCloud2) -> dict:
 
 # ----------------------------------------------------------------- scenario
 def scenario(n_steps=300):
-    """Steps of (control stamp, control, scan stamp, ranges, bearings, ids), truth and initial pose."""
+    """Steps of (control stamp, control, scan stamp, ranges, bearings, ids), truth, initial pose and
+    the parameters of the simulation's model: its true noise, given (the node's default learns it)."""
     sc = simulate(ScenarioConfig(n_steps=n_steps, seed=1))
     steps = [(T0 + s.control_stamp, s.control, T0 + s.stamp, s.ranges, s.bearings, s.ids) for s in sc.steps]
     params = {"motion.wheelbase": sc.config.wheelbase, "motion.sigma_speed": sc.config.sigma_speed,
               "motion.sigma_steering": sc.config.sigma_steering,
               "motion.noise_reference_period": sc.config.dt, "sensor.max_range": sc.config.max_range,
               "noise.sigma_range": sc.config.sigma_range, "noise.sigma_bearing": sc.config.sigma_bearing,
-              "noise.rho": sc.config.rho}
+              "noise.rho": sc.config.rho, "noise.model": "gaussian", "noise_learning.enabled": False}
     return steps, sc.true_poses, sc.landmarks, sc.initial_pose, params
 
 

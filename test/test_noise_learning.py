@@ -287,10 +287,9 @@ def test_node_diagnostics_show_the_learned_values():
     ros = Harness()
     try:
         node = ros.start(motion_source="control", control_angular="steering",
-                         **{"filter.num_particles": 30, "initial_pose.x": float(initial[0]),
+                         **{**model, "filter.num_particles": 30, "initial_pose.x": float(initial[0]),
                             "initial_pose.y": float(initial[1]), "initial_pose.yaw": float(initial[2]),
-                            "noise_learning.enabled": True, "noise_learning.warmup_observations": 20},
-                         **model)
+                            "noise_learning.enabled": True, "noise_learning.warmup_observations": 20})
         for control_stamp, control, stamp, ranges, bearings, ids in steps:
             ros.control(control_stamp, *control)
             if len(ranges):
