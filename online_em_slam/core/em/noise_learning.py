@@ -40,7 +40,6 @@ uncertainty, so most of its information is missing).
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -52,7 +51,7 @@ from ..config import ObservationNoiseConfig, SensorConfig, SlamConfig
 from .step import FilterStepData
 from ..models.motion import step_jitter
 from ..models.observation import (component_precision_weight, inv_det_2x2, mahalanobis_2d, noise_covariance,
-                                  noise_loglik)
+                                  noise_loglik, student_t_weight)
 from .observed_information import motion_residual
 from ..filter.particles import weighted_pose_mean
 
@@ -70,6 +69,8 @@ RANGE_BINS, RANGE_BIN_REACH = 16, 100.0
 MIN_MOTION_DIMENSIONS = 0.5
 # Largest change of the motion scale in use per filter step, in log: a factor 9 takes 110 steps.
 MAX_SCALE_RATE = 0.02
+# Its bounds on the ratio, by numpy's exp as they always were (math.exp may round differently).
+_SCALE_RATIO = (float(np.exp(-MAX_SCALE_RATE)), float(np.exp(MAX_SCALE_RATE)))
 
 
 def batch_step_size(count: float, batch: int, alpha: float) -> float:
@@ -77,6 +78,14 @@ def batch_step_size(count: float, batch: int, alpha: float) -> float:
     1 - prod_j (1 - n_j^-alpha), so a scan of P observations weighs as P single updates."""
     n = count + np.arange(1, batch + 1, dtype=float)
     return float(1.0 - np.prod(1.0 - n ** -alpha))
+
+
+def batch_step_sizes(counts: np.ndarray, batches: np.ndarray, alpha: float) -> np.ndarray:
+    """:func:`batch_step_size` of several averages at once (K,): the rows' factors padded with 1
+    (a product's exact no-op) and multiplied left to right, as the one-row product is."""
+    n = counts[:, None] + np.arange(1, batches.max() + 1, dtype=float)                # (K, max batch)
+    factors = np.where(n <= (counts + batches)[:, None], 1.0 - n ** -alpha, 1.0)
+    return 1.0 - np.multiply.reduce(factors, axis=1)                                 # np.prod's reduction
 
 
 @dataclass
@@ -104,23 +113,42 @@ class RangeBins:
 
     def __init__(self, max_range: float, alpha: float) -> None:
         self.edges = np.linspace(0.0, min(max_range, RANGE_BIN_REACH), RANGE_BINS + 1)[1:-1]
-        self.bins = [StochasticAverage(alpha) for _ in range(RANGE_BINS)]
+        self.counts = np.zeros(RANGE_BINS, dtype=np.int64)          # observations blended in per bin
+        self.values = np.zeros((RANGE_BINS, 3))                     # the averages (rows with count 0: none yet)
         self.alpha = alpha
 
     def blend(self, ranges: np.ndarray, squared: np.ndarray) -> None:
+        """One scan's observations: per bin, its mean of (r, r^2, e_r^2) as one batch of
+        :class:`StochasticAverage` (the first batch replaces the empty average)."""
         index = np.searchsorted(self.edges, ranges)
-        for j in np.unique(index):
-            mine = index == j
-            r = ranges[mine]
-            self.bins[j].blend(np.array([r.mean(), (r * r).mean(), squared[mine].mean()]), int(mine.sum()))
+        order = np.argsort(index, kind="stable")                    # a bin's observations together, in their order
+        r = ranges[order]
+        bins, sizes, sums = _group_sums(index[order], np.array([r, r * r, squared[order]]))
+        sample = sums / sizes[:, None]                              # np.mean: the sum over the count
+        counts = self.counts[bins]
+        gamma = batch_step_sizes(counts, sizes, self.alpha)
+        old = self.values[bins]
+        self.values[bins] = np.where((counts == 0)[:, None], sample, old + gamma[:, None] * (sample - old))
+        self.counts[bins] = counts + sizes
 
     def table(self) -> tuple[np.ndarray, np.ndarray]:
         """(weights n_j^alpha (K,), means (K, 3)) of the bins that have data; n^alpha is
         the effective sample size of an average with step sizes n^-alpha."""
-        full = [b for b in self.bins if b.value is not None]
-        if not full:
-            return np.zeros(0), np.zeros((0, 3))
-        return (np.array([b.count for b in full], dtype=float) ** self.alpha, np.array([b.value for b in full]))
+        full = self.counts > 0
+        return self.counts[full].astype(float) ** self.alpha, self.values[full]
+
+
+def _group_sums(index: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(groups (K,), sizes (K,), sums (K, Q)) of ``values`` (Q, n, rows contiguous) by the sorted
+    group ``index`` (n,).
+
+    Each sum is np.add.reduce of a contiguous run of a row: numpy's pairwise summation of
+    the group's values in their order, so sum / size is bit for bit np.mean of the group.
+    """
+    starts = [0, *(np.flatnonzero(index[1:] != index[:-1]) + 1).tolist()]
+    ends = starts[1:] + [index.size]
+    sums = np.array([np.add.reduce(values[:, s:e], axis=1) for s, e in zip(starts, ends)])
+    return index[starts], np.subtract(ends, starts), sums
 
 
 def range_noise_fit(counts: np.ndarray, means: np.ndarray, a: float, b: float, free: tuple[bool, bool],
@@ -137,6 +165,8 @@ def range_noise_fit(counts: np.ndarray, means: np.ndarray, a: float, b: float, f
     params = np.array([a, b], dtype=float)
     if counts.size == 0 or not free.any():
         return a, b
+    if free[0] and not free[1] and b == 0.0 and a > 0.0 and np.all(np.isfinite(means)):
+        return _constant_range_noise_fit(counts, means[:, 2], a, b, iterations)
     for _ in range(iterations):
         weights = counts / np.maximum(_range_variance(means, params), 1e-300) ** 2
         cost = _range_cost(means, weights, params)
@@ -152,6 +182,39 @@ def range_noise_fit(counts: np.ndarray, means: np.ndarray, a: float, b: float, f
             break
         params = trial
     return float(params[0]), float(params[1])
+
+
+def _constant_range_noise_fit(counts: np.ndarray, squared: np.ndarray, a: float, b: float,
+                              iterations: int) -> tuple[float, float]:
+    """:func:`range_noise_fit` of a alone with b = 0 (the default: range_growth not learned),
+    in scalars where the general one has arrays, with the same floating-point operations.
+
+    With b = 0 (and finite means) every bin's variance a^2 + 2ab E[r] + b^2 E[r^2] is
+    exactly a^2 and the Jacobian's column 2 (a + b E[r]) exactly 2a; the sums over bins stay
+    the same BLAS dot products, and the 1x1 solve is LAPACK's one division.  (Solving for a
+    in closed form would give the same a up to rounding, not bit for bit.)
+    """
+    for _ in range(iterations):
+        var = a * a
+        floor = max(var, 1e-300)
+        weights = counts / (floor * floor)                  # counts / max(v, 1e-300)^2 (numpy squares by x * x)
+        rho = var - squared
+        cost = float(weights @ rho ** 2)
+        J = np.full(squared.size, 2.0 * a)
+        G = float(J @ (weights * J))
+        G = G + 1e-12 * max(G, 1e-300)                      # the ridge of _gauss_newton_step
+        step = -(float(J @ (weights * rho)) / G) if G != 0.0 else 0.0   # singular: no step, as LinAlgError
+        if abs(step) <= 1e-9 * abs(a) + 1e-15:
+            break                                           # converged (b's step is 0)
+        for _ in range(10):                                 # backtrack: keep the cost decreasing
+            trial = a + step
+            if trial > 0 and float(weights @ (trial * trial - squared) ** 2) <= cost * (1 + 1e-12):
+                break
+            step = 0.5 * step
+        else:
+            break
+        a, b = trial, b + 0.0
+    return float(a), float(b)
 
 
 def _range_variance(means: np.ndarray, params: np.ndarray) -> np.ndarray:
@@ -210,9 +273,10 @@ def map_uncertainty(R: np.ndarray, n_obs: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class MotionStep:
-    """One filter step of the motion-scale window: residual c_t = f(xbar_{t-1}) - xbar_t (3,),
-    Jacobian F_t, motion noise covariance Q_t at scale 1, jitter J, posterior spread P_t."""
+class MotionSteps:
+    """Filter steps of the motion-scale window, oldest first (L of them): residuals
+    c_t = f(xbar_{t-1}) - xbar_t (L, 3), Jacobians F_t, motion noise covariances Q_t at
+    scale 1, jitters J_t and posterior spreads P_t (L, 3, 3 each)."""
 
     c: np.ndarray
     F: np.ndarray
@@ -220,24 +284,66 @@ class MotionStep:
     J: np.ndarray
     P: np.ndarray
 
+    def __getitem__(self, index: slice) -> MotionSteps:
+        return MotionSteps(self.c[index], self.F[index], self.Q[index], self.J[index], self.P[index])
 
-def compound(steps: list[MotionStep]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+
+class MotionWindow:
+    """The last ``size`` filter steps' :class:`MotionSteps`, kept in place in stacked arrays
+    (a push shifts them by one): no per-step objects, no copies to read the window."""
+
+    def __init__(self, size: int) -> None:
+        self.size, self.count = size, 0
+        self.steps = MotionSteps(np.zeros((size, 3)), *(np.zeros((size, 3, 3)) for _ in range(4)))
+
+    @property
+    def full(self) -> bool:
+        return self.count >= self.size
+
+    def append(self, c: np.ndarray, F: np.ndarray, Q: np.ndarray, J: np.ndarray, P: np.ndarray) -> None:
+        for stack, value in zip((self.steps.c, self.steps.F, self.steps.Q, self.steps.J, self.steps.P),
+                                (c, F, Q, J, P)):
+            stack[:-1] = stack[1:]
+            stack[-1] = value
+        self.count += 1
+
+
+def compound(steps: MotionSteps) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """C = sum_k Phi(t, k) c_k, Q_L = sum_k Phi Q_k Phi^T, J_L (the jitter's), Phi(t, start) over ``steps``.
 
     C is what the window's motion residuals add up to at its end: the open-loop
     prediction of the pose at t from the posterior at the window's start, minus
     the posterior mean at t; Q_L is its motion covariance at scale 1.
+
+    Phi(t, k) is built from the end backwards, one 3x3 product per step (the same
+    products in the same order as one step at a time); the terms are then one stacked
+    matmul each (per matrix the same BLAS call) and summed newest first from zero.
     """
-    C, Q, J, Phi = np.zeros(3), np.zeros((3, 3)), np.zeros((3, 3)), np.eye(3)
-    for step in reversed(steps):
-        C += Phi @ step.c
-        Q += Phi @ step.Q @ Phi.T
-        J += Phi @ step.J @ Phi.T
-        Phi = Phi @ step.F
-    return C, Q, J, Phi
+    L = steps.c.shape[0]
+    Phi = np.empty((L + 1, 3, 3))                 # Phi[k + 1] = Phi(t, k) of step k; Phi[0] the whole window's
+    Phi[L] = np.eye(3)
+    for k in range(L - 1, -1, -1):
+        np.matmul(Phi[k + 1], steps.F[k], out=Phi[k])
+    Phis, PhisT = Phi[1:], Phi[1:].transpose(0, 2, 1)
+    terms = np.concatenate([(Phis @ steps.c[..., None]).reshape(L, 3), (Phis @ steps.Q @ PhisT).reshape(L, 9),
+                            (Phis @ steps.J @ PhisT).reshape(L, 9)], axis=1)
+    total = _running_total(terms[::-1])
+    return total[:3], total[3:12].reshape(3, 3), total[12:].reshape(3, 3), Phi[0]
 
 
-def prediction_statistic(steps: list[MotionStep], pose_jacobian: np.ndarray, innovation: np.ndarray,
+def _running_total(terms: np.ndarray) -> np.ndarray:
+    """((0 + terms[0]) + terms[1]) + ... over the first axis of ``terms`` (L, ...).
+
+    A cumulative sum adds strictly in order; starting from terms[0] instead of 0 + terms[0]
+    can differ only in the sign of a zero while every partial sum is zero, which the final
+    + 0.0 settles as the start from +0 did (x + 0.0 is x otherwise).
+    """
+    if terms.shape[0] == 0:
+        return np.zeros(terms.shape[1:])
+    return np.cumsum(terms, axis=0)[-1] + 0.0
+
+
+def prediction_statistic(steps: MotionSteps, pose_jacobian: np.ndarray, innovation: np.ndarray,
                          noise_cov: np.ndarray) -> np.ndarray | None:
     """(tr(W G), nu^T W nu - tr(W K)) of the scan at the window's end: s = mean 2nd / mean 1st, (M).
 
@@ -258,7 +364,7 @@ def prediction_statistic(steps: list[MotionStep], pose_jacobian: np.ndarray, inn
     Hx = pose_jacobian.reshape(-1, 3)                                    # (2P, 3)
     nu = innovation.reshape(-1) - Hx @ C
     G = Hx @ Q @ Hx.T
-    K = Hx @ (Phi @ steps[0].P @ Phi.T + J) @ Hx.T + _block_diagonal(noise_cov)
+    K = Hx @ (Phi @ steps.P[0] @ Phi.T + J) @ Hx.T + _block_diagonal(noise_cov)
     try:
         if np.trace(np.linalg.solve(Q + J, Q)) < MIN_MOTION_DIMENSIONS:
             return None                   # standing still: the jitter is all the window moved
@@ -290,6 +396,39 @@ def pose_jacobian_from(H: np.ndarray, pose: np.ndarray, sensor: SensorConfig) ->
     return J
 
 
+def _latent(noise: ObservationNoiseConfig, nu: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """noise_loglik's latent variable (..., P, C) without its log-likelihood (the statistics do not
+    use it), and the Student-t's d2 = nu^T S^-1 nu (..., P) for its tail statistic (else None).
+
+    ``S`` (P, 2, 2) broadcasts against ``nu`` (..., P, 2): the Student-t's d2 then takes one
+    inverse per observation, not one per particle (elementwise the same numbers); the other
+    models get S at nu's shape, as noise_loglik always had it.
+    """
+    if noise.model == "student_t":
+        d2, _ = mahalanobis_2d(nu, S)
+        return student_t_weight(d2, noise.dof)[..., None], d2
+    return noise_loglik(noise, nu, np.broadcast_to(S, nu.shape + (2,)))[1], None
+
+
+def _clip(x: float, low: float, high: float) -> float:
+    """float(np.clip(x, low, high)) of one number without a ufunc call: numpy's order and ties
+    (max with low, then min with high; on a tie x stays, NaN stays), which max/min keep."""
+    return float(min(max(x, low), high))
+
+
+class _UsedObservations:
+    """The step's observations that inform the noise (``use``) and what both statistics take
+    of them, computed once: ranges (P,), counts n_k (P,), innovations nu (N, P, 2), Jacobians
+    H (N, P, 2, 2), their R (P, 2, 2) under the current estimate and the map term
+    R / (n_k - 1) (P, 2, 2)."""
+
+    def __init__(self, data: FilterStepData, n_obs: np.ndarray, use: np.ndarray, R: np.ndarray) -> None:
+        self.ranges, self.n_obs = data.y[use, 0], n_obs[use]
+        self.nu, self.H = data.nu[:, use], data.H[:, use]
+        self.R = R
+        self.map_term = map_uncertainty(R, self.n_obs)
+
+
 class NoiseLearner:
     """Online EM statistics of the noise and the learned :class:`ObservationNoiseConfig` and motion scale.
 
@@ -308,7 +447,8 @@ class NoiseLearner:
         self.learn = learn
         self.observations = StochasticAverage(self.settings.step_size_exponent)
         self.motion = StochasticAverage(self.settings.motion_step_size_exponent)
-        self.window: deque[MotionStep] = deque(maxlen=self.settings.motion_window + 1)
+        self.window = MotionWindow(self.settings.motion_window + 1)
+        self._jitter_key, self._jitter = None, None
         self.range_bins = RangeBins(config.sensor.max_range, self.settings.step_size_exponent)
         self.estimate = config.noise                     # current M-step values
         self.scale_estimate = 1.0
@@ -326,7 +466,7 @@ class NoiseLearner:
             self.estimate = self._start = self._in_use = noise
         if "motion_scale" in self.learn:
             low, high = self.settings.motion_scale_limits
-            self.scale_estimate = self.scale_in_use = float(np.clip(motion_scale, low, high))
+            self.scale_estimate = self.scale_in_use = _clip(motion_scale, low, high)
 
     def saved_values(self) -> dict[str, np.ndarray] | None:
         """The values in use for a map file (None when nothing is learned)."""
@@ -380,11 +520,21 @@ class NoiseLearner:
         ``n_obs`` (P,): observation counts of the observed landmarks (this one
         included).
         """
-        use = (np.asarray(n_obs) >= self.settings.min_landmark_observations) & self._configured_R(data)
+        if not self.learn:
+            return
+        n_obs = np.asarray(n_obs)
+        configured, R_in_use = self._configured_R(data)
+        use = (n_obs >= self.settings.min_landmark_observations) & configured
+        # Both statistics take the same observations under the same (current) estimate; once
+        # warm that is the noise in use, whose R (elementwise in the ranges) is already made.
+        used = None
+        if use.any():
+            R = R_in_use[use] if self.estimate is self._in_use else noise_covariance(self.estimate, data.y[use, 0])
+            used = _UsedObservations(data, n_obs, use, R)
         if "motion_scale" in self.learn:
-            self._update_motion(data, n_obs, use)        # every step: silence is part of the motion
+            self._update_motion(data, used)              # every step: silence is part of the motion
         if self.learn & OBSERVATION_QUANTITIES and data.rows.size:
-            statistics = self._observation_statistics(data, n_obs, use)
+            statistics = self._observation_statistics(data, used)
             if statistics is not None:
                 sample, ranges, squared = statistics
                 self.observations.blend(sample, ranges.size)
@@ -392,40 +542,37 @@ class NoiseLearner:
                 self.estimate = self._observation_m_step(self.observations.value)
                 self._in_use = self.estimate if self.observation_noise_warm else self._start
 
-    def _observation_statistics(self, data: FilterStepData, n_obs: np.ndarray, use: np.ndarray):
+    def _observation_statistics(self, data: FilterStepData, used: _UsedObservations | None):
         """(the step's mean of [E_bb, rho term, tail statistics], ranges, E_rr), from (E), over the
-        observations ``use`` (landmarks seen often enough, the configured R)."""
-        if not use.any():
+        ``used`` observations (landmarks seen often enough, the configured R)."""
+        if used is None:
             return None
         # Latent variables under the latest estimate (the E-step of online EM runs at the
         # current parameter, also while the filter still warms up).
         noise = self.estimate
-        ranges = data.y[use, 0]
-        nu, H, R, w = data.nu[:, use], data.H[:, use], noise_covariance(noise, ranges), data.weights
-        map_term = map_uncertainty(R, np.asarray(n_obs)[use])                          # (P, 2, 2)
-        S = np.broadcast_to(R + map_term, H.shape)
-        _, latent = noise_loglik(noise, nu, S)                                         # (N, P, C)
+        ranges, nu, R, map_term, w = used.ranges, used.nu, used.R, used.map_term, data.weights
+        latent, d2 = _latent(noise, nu, R + map_term)                                 # (N, P, C)
         outer = nu[..., :, None] * nu[..., None, :] - map_term
         E = np.einsum("n,np,npij->pij", w, component_precision_weight(noise, latent), outer)  # (E), (P, 2, 2)
         a, b = noise.sigma_range, noise.range_growth
         sample = np.concatenate([
             [E[:, 1, 1].mean(), (a * E[:, 0, 1] / (a + b * ranges)).mean()],     # rho scales with sigma_r(r)
-            self._tail_statistics(noise, w, latent, outer, R, nu, S)])
+            self._tail_statistics(noise, w, latent, outer, R, d2)])
         if not (np.all(np.isfinite(sample)) and np.all(np.isfinite(E[:, 0, 0]))):
             return None
         return sample, ranges, E[:, 0, 0]
 
     @staticmethod
     def _tail_statistics(noise, w: np.ndarray, latent: np.ndarray, outer: np.ndarray, R: np.ndarray,
-                         nu: np.ndarray, S: np.ndarray) -> np.ndarray:
+                         d2: np.ndarray | None) -> np.ndarray:
         """The statistics of the tails' parameters, averaged over the scan's observations.
 
         Mixture: mean responsibilities r_c and r_c q, q = tr(R^-1 outer) / 2 (weights and
         outlier scales).  Student-t: E[log tau - tau | nu] with tau | nu ~ Gamma((dof + 2)/2,
-        (dof + d2)/2), so E[log tau] = psi((dof + 2)/2) - log((dof + d2)/2) (the dof).
+        (dof + d2)/2), so E[log tau] = psi((dof + 2)/2) - log((dof + d2)/2) (the dof), d2 (N, P)
+        the innovations' nu^T S^-1 nu.
         """
         if noise.model == "student_t":
-            d2, _ = mahalanobis_2d(nu, S)
             log_tau = digamma(0.5 * noise.dof + 1.0) - np.log(0.5 * (noise.dof + d2))
             return np.array([np.einsum("n,np->p", w, log_tau - latent[..., 0]).mean()])
         R_inv, _ = inv_det_2x2(R)
@@ -433,48 +580,56 @@ class NoiseLearner:
         return np.concatenate([np.einsum("n,npc->pc", w, latent).mean(axis=0),
                                np.einsum("n,npc,np->pc", w, latent, q).mean(axis=0)])
 
-    def _configured_R(self, data: FilterStepData) -> np.ndarray:
-        """Observations whose R is the one in use; those with their own range_std /
-        bearing_std carry a known noise and say nothing about R."""
+    def _configured_R(self, data: FilterStepData) -> tuple[np.ndarray, np.ndarray]:
+        """(observations whose R is the one in use (P,), that R (P, 2, 2)); those with their
+        own range_std / bearing_std carry a known noise and say nothing about R."""
         expected = noise_covariance(self._in_use, data.y[:, 0])
-        return np.all(np.isclose(data.R, expected, rtol=1e-9, atol=1e-15), axis=(-1, -2))
+        if np.array_equal(data.R, expected):        # the usual case: isclose holds wherever == does
+            return np.ones(expected.shape[:-2], dtype=bool), expected
+        return np.all(np.isclose(data.R, expected, rtol=1e-9, atol=1e-15), axis=(-1, -2)), expected
 
-    def _update_motion(self, data: FilterStepData, n_obs: np.ndarray, use: np.ndarray) -> None:
+    def _step_jitter(self) -> np.ndarray:
+        """step_jitter of the motion config, made again only when its jitter values change."""
+        motion = self.config.motion
+        key = (motion.position_jitter, motion.heading_jitter)
+        if key != self._jitter_key:
+            self._jitter_key, self._jitter = key, step_jitter(motion)
+        return self._jitter
+
+    def _update_motion(self, data: FilterStepData, used: _UsedObservations | None) -> None:
         """Push the step into the window; at a scan of known landmarks, blend (M) of the window."""
         scale = self.motion_scale()
-        jitter = step_jitter(self.config.motion)
+        jitter = self._step_jitter()
         pose = weighted_pose_mean(data.particles, data.weights)
         dev = data.particles - pose
         dev[:, 2] = wrap_angle(dev[:, 2])
-        self.window.append(MotionStep(c=motion_residual(data.motion_mean, pose), F=data.motion_jacobian.copy(),
-                                      Q=(data.motion_cov - jitter) / scale, J=jitter,
-                                      P=np.einsum("n,ni,nj->ij", data.weights, dev, dev)))
-        if len(self.window) < self.window.maxlen or not use.any() or not self._observation_noise_settled:
+        self.window.append(motion_residual(data.motion_mean, pose), data.motion_jacobian,
+                           (data.motion_cov - jitter) / scale, jitter, np.einsum("n,ni,nj->ij", data.weights, dev, dev))
+        if not self.window.full or used is None or not self._observation_noise_settled:
             return
-        sample = prediction_statistic(list(self.window), *self._scan_terms(data, use, np.asarray(n_obs)[use], pose))
+        sample = prediction_statistic(self.window.steps, *self._scan_terms(data, used, pose))
         if sample is None:
             return
         self.motion.blend(sample)
         low, high = self.settings.motion_scale_limits
-        self.scale_estimate = float(np.clip(self.motion.value[1] / self.motion.value[0], low, high))
+        self.scale_estimate = _clip(self.motion.value[1] / self.motion.value[0], low, high)
         if self.motion_scale_warm:
             # Move towards the estimate by at most MAX_SCALE_RATE (log) per step: the pose
             # spreads in (M) come from the filter under the scale in use; no jumps.
-            ratio = np.clip(self.scale_estimate / self.scale_in_use, np.exp(-MAX_SCALE_RATE), np.exp(MAX_SCALE_RATE))
+            ratio = _clip(self.scale_estimate / self.scale_in_use, *_SCALE_RATIO)
             self.scale_in_use = float(self.scale_in_use * ratio)
 
-    def _scan_terms(self, data: FilterStepData, use: np.ndarray, n_obs: np.ndarray, pose: np.ndarray):
+    def _scan_terms(self, data: FilterStepData, used: _UsedObservations, pose: np.ndarray):
         """(H_x (P, 2, 3), posterior mean innovation (P, 2), noise covariance (P, 2, 2)) of the scan.
 
         The noise is the learned R (an outlier's divided by its E-step precision factor,
         so it weighs as in the likelihood) plus the map term H Sigma H^T.
         """
         w, noise = data.weights, self.estimate
-        nu = np.einsum("n,npi->pi", w, data.nu[:, use])
-        H = np.einsum("n,npij->pij", w, data.H[:, use])
-        cov = noise_covariance(noise, data.y[use, 0])
-        map_term = map_uncertainty(cov, n_obs)
-        _, latent = noise_loglik(noise, nu, cov + map_term)
+        nu = np.einsum("n,npi->pi", w, used.nu)
+        H = np.einsum("n,npij->pij", w, used.H)
+        cov, map_term = used.R, used.map_term
+        latent, _ = _latent(noise, nu, cov + map_term)
         cov = cov / component_precision_weight(noise, latent)[:, None, None] + map_term
         return pose_jacobian_from(H, pose, self.config.sensor), nu, cov
 
@@ -486,16 +641,16 @@ class NoiseLearner:
         free = ("range" in self.learn, "range_growth" in self.learn)
         if any(free):
             a, b = range_noise_fit(*self.range_bins.table(), a, b, free)
-            a, b = float(np.clip(a, *s.sigma_range_limits)), float(np.clip(b, *s.range_growth_limits))
+            a, b = _clip(a, *s.sigma_range_limits), _clip(b, *s.range_growth_limits)
         sb = noise.sigma_bearing
         if "bearing" in self.learn:
-            sb = float(np.clip(math.sqrt(max(stats[0], 0.0)), *s.sigma_bearing_limits))
+            sb = _clip(math.sqrt(max(stats[0], 0.0)), *s.sigma_bearing_limits)
         rho = noise.rho
         if "correlation" in self.learn:
             bound = s.correlation_limit * a * sb
-            rho = float(np.clip(stats[1], -bound, bound))
+            rho = _clip(stats[1], -bound, bound)
         else:
-            rho = float(np.clip(rho, -0.999 * a * sb, 0.999 * a * sb))   # stays valid as a, sb move
+            rho = _clip(rho, -0.999 * a * sb, 0.999 * a * sb)            # stays valid as a, sb move
         values = dict(sigma_range=a, range_growth=b, sigma_bearing=sb, rho=rho)
         if "mixture" in self.learn:
             values.update(self._mixture_m_step(stats[2:]))
