@@ -373,6 +373,9 @@ class NoiseLearningConfig:
         of it (below 1 follows a motion noise that changes, e.g. with terrain).
     warmup_observations / warmup_steps: the learned observation noise is used
         after this many observations, the motion scale after this many scans.
+    motion_scale_tolerance: ... and once the motion scale's relative standard
+        error is below this: one scan says little about the motion noise, and a
+        few hundred scans' estimate can still be several times off.
     replay_warmup / max_replay_inputs: the warm-up ran under the configured
         (possibly wrong) noise, and the map's frame set then stays; once every
         learned quantity is in use, the estimator restarts at its initial pose
@@ -405,6 +408,9 @@ class NoiseLearningConfig:
                                      "is used.")
     warmup_steps: int = param(50, 0, 10 ** 9, doc="Scans (motion statistics) before the learned motion scale "
                               "is used.")
+    motion_scale_tolerance: float = param(0.5, 0.0, 10.0, lo_open=True, doc="The learned motion scale is used "
+                                          "once its relative standard error is below this (and warmup_steps "
+                                          "have passed): a short run's estimate can be several times off.")
     replay_warmup: bool = param(True, doc="Once every learned quantity is in use, filter the warm-up's inputs "
                                 "again from the start with the learned noise (once; the pose may jump then).")
     max_replay_inputs: int = param(100000, 0, 10 ** 7, doc="Inputs kept for the warm-up replay; a longer "

@@ -13,13 +13,14 @@ held between a floor and a ceiling.  The estimator uses them after a warm-up.
 Observation statistics, per associated observation p with innovations
 nu_ip = y_p - h(xi_i, thetabar_k) under the posterior particles (weights w_i):
 
-    E_p   = sum_i w_i (sum_c r_ipc / s_c) (nu_ip nu_ip^T - R / (n_k - 1))          (E)
+    E_p   = sum_i w_i (sum_c r_ipc / s_c) nu_ip nu_ip^T (n_k - 1) / n_k             (E)
 
 r_ipc the responsibility of mixture component c (scale s_c), n_k the landmark's
 observation count.  The innovation is predictive (thetabar_k has not seen y_p
 yet), so its second moment is R plus the map's uncertainty seen through h,
-about R / (n_k - 1) for an estimate that averages n_k - 1 observations: it is
-taken out, or R would absorb the map's uncertainty (:func:`map_uncertainty`).
+about R / (n_k - 1) for an estimate that averages n_k - 1 observations, so
+R (1 + 1 / (n_k - 1)): the factor takes the map's share out, or R would absorb
+the map's uncertainty (:func:`map_share`).
 The pose's uncertainty needs no term: averaging over the posterior particles
 is the E-step's expectation over the pose (mean outer product plus spread).
 
@@ -95,10 +96,12 @@ class StochasticAverage:
     alpha: float
     value: np.ndarray | None = None
     count: int = 0
+    squared_weights: float = 0.0        # sum of the samples' squared weights: Var(S) = this x Var(s)
 
     def blend(self, sample: np.ndarray, batch: int = 1) -> None:
-        gamma = batch_step_size(self.count, batch, self.alpha)
+        gamma = 1.0 if self.value is None else batch_step_size(self.count, batch, self.alpha)
         self.value = sample.copy() if self.value is None else self.value + gamma * (sample - self.value)
+        self.squared_weights = (1.0 - gamma) ** 2 * self.squared_weights + gamma ** 2 / batch
         self.count += batch
 
 
@@ -259,6 +262,33 @@ def student_t_dof(statistic: float, low: float, high: float) -> float:
     if score(hi) >= 0.0:
         return high                                  # the tails are no heavier than a Gaussian's
     return float(math.exp(brentq(score, lo, hi, xtol=1e-10)))
+
+
+def ratio_error(moments: np.ndarray, squared_weights: float) -> float:
+    """Relative standard error of s = E[b] / E[a] from the averages (E[a], E[b], E[a^2], E[ab], E[b^2])
+    of independent samples (a, b) with weights whose squares sum to ``squared_weights``.
+
+    Delta method: s - s* ~ sum_i w_i (b_i - s a_i) / E[a], so Var(s) = q E[(b - s a)^2] / E[a]^2.
+    A non-positive s has no relative error: inf.
+    """
+    a, b, aa, ab, bb = moments
+    s = b / a
+    if not s > 0.0:
+        return math.inf
+    residual = max(bb - 2.0 * s * ab + s * s * aa, 0.0)
+    return float(math.sqrt(squared_weights * residual) / (a * s))
+
+
+def map_share(n_obs: np.ndarray) -> np.ndarray:
+    """(n_k - 1) / n_k (P,): the part of the innovation's second moment R (1 + 1/(n_k - 1)) that is R.
+
+    A factor rather than subtracting R / (n_k - 1) with the current estimate of R: while
+    that is still a wrong start (9x in variance, say) the difference can go negative
+    for landmarks seen a few times, and the first, heavily weighted statistics would
+    pin R to its floor.
+    """
+    m = np.maximum(np.asarray(n_obs, dtype=float) - 1.0, 1.0)
+    return m / (m + 1.0)
 
 
 def map_uncertainty(R: np.ndarray, n_obs: np.ndarray) -> np.ndarray:
@@ -453,6 +483,7 @@ class NoiseLearner:
         self.estimate = config.noise                     # current M-step values
         self.scale_estimate = 1.0
         self.scale_in_use = 1.0
+        self._motion_warm = False
         self._start = config.noise                       # in use until warm: configured, or restored
         self._in_use = config.noise
 
@@ -494,7 +525,19 @@ class NoiseLearner:
 
     @property
     def motion_scale_warm(self) -> bool:
-        return self.motion.count >= self.settings.warmup_steps and self.motion.value is not None
+        """Warmed up and known to ``motion_scale_tolerance`` (relative standard error); then for good."""
+        self._motion_warm = self._motion_warm or bool(
+            self.motion.count >= self.settings.warmup_steps and self.motion.value is not None
+            and self.motion_scale_error() <= self.settings.motion_scale_tolerance)
+        return self._motion_warm
+
+    def motion_scale_error(self) -> float:
+        """Relative standard error of the motion scale's estimate (inf before it is positive):
+        :func:`ratio_error` x sqrt(motion_window), since consecutive windows share all but one
+        step of motion noise (their triangular autocorrelation sums to the window's length)."""
+        if self.motion.value is None:
+            return math.inf
+        return math.sqrt(self.settings.motion_window) * ratio_error(self.motion.value, self.motion.squared_weights)
 
     @property
     def _observation_noise_settled(self) -> bool:
@@ -552,7 +595,7 @@ class NoiseLearner:
         noise = self.estimate
         ranges, nu, R, map_term, w = used.ranges, used.nu, used.R, used.map_term, data.weights
         latent, d2 = _latent(noise, nu, R + map_term)                                 # (N, P, C)
-        outer = nu[..., :, None] * nu[..., None, :] - map_term
+        outer = nu[..., :, None] * nu[..., None, :] * map_share(used.n_obs)[:, None, None]
         E = np.einsum("n,np,npij->pij", w, component_precision_weight(noise, latent), outer)  # (E), (P, 2, 2)
         a, b = noise.sigma_range, noise.range_growth
         sample = np.concatenate([
@@ -610,7 +653,8 @@ class NoiseLearner:
         sample = prediction_statistic(self.window.steps, *self._scan_terms(data, used, pose))
         if sample is None:
             return
-        self.motion.blend(sample)
+        a, b = sample
+        self.motion.blend(np.array([a, b, a * a, a * b, b * b]))         # the moments for motion_scale_error
         low, high = self.settings.motion_scale_limits
         self.scale_estimate = _clip(self.motion.value[1] / self.motion.value[0], low, high)
         if self.motion_scale_warm:
@@ -683,7 +727,7 @@ class NoiseLearner:
                 "sigma_range": noise.sigma_range, "sigma_bearing": noise.sigma_bearing, "rho": noise.rho,
                 "range_growth": noise.range_growth, "model": noise.model, "dof": noise.dof,
                 "mixture_weights": list(noise.mixture_weights), "mixture_scales": list(noise.mixture_scales),
-                "motion_scale": self.scale_estimate}
+                "motion_scale": self.scale_estimate, "motion_scale_error": _finite_or_none(self.motion_scale_error())}
 
     def parameters(self) -> dict:
         """The values in use as flat node parameters (noise.*, motion.* standard deviations),
@@ -697,3 +741,8 @@ class NoiseLearner:
         root = math.sqrt(self.motion_scale())
         values.update({f"motion.{name}": getattr(self.config.motion, name) * root for name in MOTION_STDS})
         return values
+
+
+def _finite_or_none(value: float) -> float | None:
+    """A value for /diagnostics and metrics.json, which have no infinity."""
+    return value if math.isfinite(value) else None

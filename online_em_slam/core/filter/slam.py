@@ -285,7 +285,9 @@ class OnlineEMSlam:
         """The warm-up ran under the configured noise, and the map's frame set then would
         stay: restart at the initial pose and filter the warm-up's inputs again, starting
         from the learned noise (docs/METHOD.md, "Noise learned online").  Once."""
-        log, noise, scale = self._warmup_log, self._noise.noise_config(), self._noise.motion_scale()
+        # The motion scale's estimate, not the one in use: that one moves towards the
+        # estimate at a bounded rate and would filter the replay's first steps at the start value.
+        log, noise, scale = self._warmup_log, self._noise.noise_config(), self._noise.scale_estimate
         drops = dict(self.drops)                    # the replayed inputs were counted already
         self.reset(*self._warmup_start)
         self._warmup_log = None
