@@ -16,7 +16,7 @@ import pytest
 from online_em_slam.core import OnlineEMSlam
 from online_em_slam.core.config import NoiseLearningConfig, SlamConfig, replace_section
 from online_em_slam.core.em.noise_learning import (RangeBins, StochasticAverage, batch_step_size, map_uncertainty,
-                                                range_noise_fit, ratio_error)
+                                                map_share, range_noise_fit, ratio_error)
 from online_em_slam.core.types import Observations
 from online_em_slam.evaluation import landmark_pairs_by_id, map_error_split
 from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for
@@ -109,6 +109,32 @@ def test_overlapping_windows_vary_window_length_times_as_much():
     sliding = np.lib.stride_tricks.sliding_window_view(steps, L, axis=1).sum(axis=2)   # (4000, n)
     independent_variance = L / n                                  # Var(one sum) = L, n of them
     assert sliding.mean(axis=1).var() / independent_variance == pytest.approx(L, rel=0.1)
+
+
+def test_map_share_leaves_R_of_an_innovation_against_the_average_of_earlier_observations():
+    """Independent check of (E): a landmark estimated as the mean of n - 1 observations, the
+    n-th observation's innovation has second moment R n / (n - 1); times map_share, R."""
+    rng = np.random.default_rng(4)
+    R = np.array([[0.09, 0.002], [0.002, 0.0004]])
+    for n in (2, 5, 20):
+        draws = rng.multivariate_normal(np.zeros(2), R, size=(100000, n))
+        nu = draws[:, -1] - draws[:, :-1].mean(axis=1)
+        second = np.einsum("ti,tj->ij", nu, nu) / len(nu)
+        np.testing.assert_allclose(second * map_share(np.array([n]))[0], R, rtol=0.03, atol=2e-5)
+
+
+def test_a_start_3x_too_large_does_not_pin_R_to_its_floor():
+    """Seed 29: the first statistics come from landmarks seen 5 times; subtracting the map term
+    R / (n_k - 1) of the 9x-too-large start made them negative, R went to its floor and the
+    mixture to its ceilings for the rest of the run (shape error 5x that of the truth run)."""
+    scenario = simulate(ScenarioConfig(seed=29, outlier_probability=0.1, **TRUTH))
+    slam = OnlineEMSlam(started_wrong(slam_config_for(scenario, num_particles=PARTICLES), 3.0),
+                        initial_pose=scenario.initial_pose)
+    for step in scenario.steps[:150]:
+        feed(slam, step)
+    learned = slam.learned_noise()
+    assert learned["sigma_range"] > 0.5 * TRUTH["sigma_range"]
+    assert learned["mixture_weights"][1] < 0.4
 
 
 def test_range_noise_fit_recovers_a_and_b_from_squared_residuals():
