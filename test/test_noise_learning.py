@@ -15,8 +15,8 @@ import pytest
 
 from online_em_slam.core import OnlineEMSlam
 from online_em_slam.core.config import NoiseLearningConfig, SlamConfig, replace_section
-from online_em_slam.core.em.noise_learning import (RangeBins, StochasticAverage, batch_step_size, map_uncertainty,
-                                                map_share, range_noise_fit, ratio_error)
+from online_em_slam.core.em.noise_learning import (NoiseLearner, RangeBins, StochasticAverage, batch_step_size,
+                                                map_share, map_uncertainty, range_noise_fit, ratio_error)
 from online_em_slam.core.types import Observations
 from online_em_slam.evaluation import landmark_pairs_by_id, map_error_split
 from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for
@@ -109,6 +109,23 @@ def test_overlapping_windows_vary_window_length_times_as_much():
     sliding = np.lib.stride_tricks.sliding_window_view(steps, L, axis=1).sum(axis=2)   # (4000, n)
     independent_variance = L / n                                  # Var(one sum) = L, n of them
     assert sliding.mean(axis=1).var() / independent_variance == pytest.approx(L, rel=0.1)
+
+
+def test_motion_scale_error_counts_the_overlap_of_the_windows():
+    """Samples that are sums over sliding windows of L steps (as the motion statistic's are):
+    the reported error, ratio_error x sqrt(L), is the spread of the estimate over 2000 runs."""
+    L, n = 10, 400
+    learner = NoiseLearner(replace_section(SlamConfig(), noise_learning=NoiseLearningConfig(
+        enabled=True, motion_window=L)))
+    steps = np.random.default_rng(8).normal(size=(2000, n + L - 1))
+    b = 1.0 + 0.05 * np.lib.stride_tricks.sliding_window_view(steps, L, axis=1).sum(axis=2)   # (2000, n)
+    errors = []
+    for row in b:                                         # a = 1: the estimate is mean b
+        learner.motion.value = np.array([1.0, row.mean(), 1.0, row.mean(), (row * row).mean()])
+        learner.motion.squared_weights = 1.0 / n          # a plain average (tested above)
+        errors.append(learner.motion_scale_error())
+    estimates = b.mean(axis=1)
+    assert np.mean(errors) == pytest.approx(estimates.std() / estimates.mean(), rel=0.1)
 
 
 def test_map_share_leaves_R_of_an_innovation_against_the_average_of_earlier_observations():

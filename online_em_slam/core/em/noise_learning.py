@@ -525,10 +525,8 @@ class NoiseLearner:
 
     @property
     def motion_scale_warm(self) -> bool:
-        """Warmed up and known to ``motion_scale_tolerance`` (relative standard error); then for good."""
-        self._motion_warm = self._motion_warm or bool(
-            self.motion.count >= self.settings.warmup_steps and self.motion.value is not None
-            and self.motion_scale_error() <= self.settings.motion_scale_tolerance)
+        """Warmed up and known to ``motion_scale_tolerance`` (relative standard error); then for good
+        (set where the statistic changes, :meth:`_update_motion`)."""
         return self._motion_warm
 
     def motion_scale_error(self) -> float:
@@ -657,7 +655,9 @@ class NoiseLearner:
         self.motion.blend(np.array([a, b, a * a, a * b, b * b]))         # the moments for motion_scale_error
         low, high = self.settings.motion_scale_limits
         self.scale_estimate = _clip(self.motion.value[1] / self.motion.value[0], low, high)
-        if self.motion_scale_warm:
+        self._motion_warm = self._motion_warm or (self.motion.count >= self.settings.warmup_steps and
+                                                  self.motion_scale_error() <= self.settings.motion_scale_tolerance)
+        if self._motion_warm:
             # Move towards the estimate by at most MAX_SCALE_RATE (log) per step: the pose
             # spreads in (M) come from the filter under the scale in use; no jumps.
             ratio = _clip(self.scale_estimate / self.scale_in_use, *_SCALE_RATIO)

@@ -365,7 +365,6 @@ class OnlineEMSlam:
 
     def _observation_terms(self, obs, obs_idx, rows, sensor) -> "ObservationTerms":
         """Innovations, Jacobians, likelihood and responsibilities under theta_{t-1}."""
-        cfg = self.config
         n = sensor.shape[0]
         if not rows.size:
             return ObservationTerms.empty(n)
