@@ -71,6 +71,9 @@ class ScenarioConfig:
     noise_dof: float | None = None
     # sigma_r(range) = sigma_range + range_growth * range (the thesis' context-dependent noise)
     range_growth: float = 0.0
+    # Each landmark's observation error W_t = c W_{t-1} + sqrt(1 - c^2) e_t from step to step
+    # (AR(1): a detector that repeats its error), the same marginal N(0, R)
+    serial_correlation: float = 0.0
     known_ids: bool = True
     seed: int = 0
     # laps > 0: drive the closed route exactly ``laps`` times (n_steps is then
@@ -260,6 +263,10 @@ def draw_noise(rng: np.random.Generator, cfg: ScenarioConfig, n_steps: int, n_la
                                                 sigma_bearing=cfg.sigma_bearing, rho=cfg.rho),
                          np.zeros(()))
     W = rng.standard_normal((n_steps, n_landmarks, 2)) @ np.linalg.cholesky(R).T   # W ~ N(0, R)
+    if cfg.serial_correlation > 0:
+        c = cfg.serial_correlation
+        for t in range(1, n_steps):
+            W[t] = c * W[t - 1] + math.sqrt(1.0 - c * c) * W[t]
     outlier = rng.random((n_steps, n_landmarks)) < cfg.outlier_probability
     W = np.where(outlier[..., None], math.sqrt(cfg.outlier_scale) * W, W)          # N(0, s R)
     if cfg.noise_dof is not None:                       # t_dof(0, R): N(0, R / tau), tau ~ Gamma(dof/2, dof/2)

@@ -17,6 +17,8 @@ from online_em_slam.core import OnlineEMSlam
 from online_em_slam.core.config import NoiseLearningConfig, SlamConfig, replace_section
 from online_em_slam.core.em.noise_learning import (NoiseLearner, RangeBins, StochasticAverage, batch_step_size,
                                                 map_share, map_uncertainty, range_noise_fit, ratio_error)
+from online_em_slam.core.em.serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation
+from online_em_slam.core.models.observation import information_noise
 from online_em_slam.core.types import Observations
 from online_em_slam.evaluation import landmark_pairs_by_id, map_error_split
 from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for
@@ -220,6 +222,7 @@ def test_R_and_mixture_are_learned_from_3x_off(runs, factor):
     assert abs(learned["rho"]) < 0.1 * TRUTH["sigma_range"] * TRUTH["sigma_bearing"]
     assert learned["mixture_weights"][1] == pytest.approx(0.1, abs=0.05)
     assert 10.0 < learned["mixture_scales"][1] < 50.0                    # truth 25
+    assert max(learned["serial_correlation"]) < 0.1                     # independent errors
 
 
 @pytest.mark.parametrize("factor", [3.0, 1 / 3])
@@ -464,3 +467,80 @@ def test_no_replay_after_a_relocalisation_or_beyond_the_input_cap():
         if k == 20:
             moved.set_pose(moved.pose().mean, (0.1, 0.1, 0.01))
     assert not moved.learned_noise()["warmup_replayed"]
+
+
+# ----------------------------------------------------------------- serially correlated errors
+def test_information_noise_is_the_variance_of_a_mean_of_AR1_errors():
+    """The factor (1 + c) / (1 - c) on R against the spread of means of simulated AR(1) errors."""
+    rng = np.random.default_rng(4)
+    c, n, runs = 0.7, 400, 4000
+    e = rng.standard_normal((runs, n))
+    for t in range(1, n):
+        e[:, t] = c * e[:, t - 1] + math.sqrt(1 - c * c) * e[:, t]
+    measured = e.mean(axis=1).var() * n                         # Var(mean) / (R / n)
+    noise = replace(SlamConfig().noise, sigma_range=0.2, sigma_bearing=0.01, rho=0.001, range_growth=0.01,
+                    serial_correlation=(c, 0.0))
+    weighed = information_noise(noise)
+    factor = (1 + c) / (1 - c)
+    assert measured == pytest.approx(factor, rel=0.08)
+    assert weighed.sigma_range ** 2 == pytest.approx(factor * 0.04)
+    assert weighed.range_growth ** 2 == pytest.approx(factor * 1e-4)
+    assert weighed.sigma_bearing == 0.01 and weighed.rho == pytest.approx(0.001 * math.sqrt(factor))
+    assert weighed.serial_correlation == (0.0, 0.0)
+    independent = SlamConfig().noise
+    assert information_noise(independent) is independent
+
+
+def test_previous_innovations_pair_each_landmark_with_its_observation_in_the_scan_before():
+    """Against brute-force bookkeeping in a dict, over random scans with gaps and new ids."""
+    rng = np.random.default_rng(5)
+    memory, last = PreviousInnovations(), {}
+    for step in range(200):
+        ids = rng.choice(np.array([3, 17, 4, 99, 250, 8, 1000]), size=rng.integers(0, 5), replace=False)
+        z = rng.standard_normal((ids.size, 2))
+        previous, paired = memory.pair(step, ids, z)
+        expected = [last[i][1] for i in ids if i in last and last[i][0] == step - 1]
+        assert paired.tolist() == [bool(i in last and last[i][0] == step - 1) for i in ids]
+        np.testing.assert_array_equal(previous, np.reshape(expected, (-1, 2)))
+        last.update({int(i): (step, z[k]) for k, i in enumerate(ids)})
+
+
+def test_pose_free_residuals_are_the_weighted_least_squares_residuals():
+    """r = nu - H_x dX with dX the whitened least-squares pose correction (numpy lstsq), and its
+    covariance S - H_x A^-1 H_x^T against the spread of residuals of simulated innovations."""
+    rng = np.random.default_rng(6)
+    P = 6
+    H_x = rng.standard_normal((P, 2, 3))
+    L = rng.standard_normal((P, 2, 2)) * 0.3 + np.eye(2)
+    S = L @ np.swapaxes(L, -1, -2)
+    nu = rng.standard_normal((P, 2))
+    residual, cov = pose_free(nu, S, H_x)
+    W = np.linalg.cholesky(np.linalg.inv(S))                    # S^-1 = W W^T
+    A = np.concatenate(np.swapaxes(W, -1, -2) @ H_x)
+    b = np.concatenate(np.einsum("pji,pj->pi", W, nu))
+    dX = np.linalg.lstsq(A, b, rcond=None)[0]
+    np.testing.assert_allclose(residual, nu - H_x @ dX, atol=1e-10)
+    draws = np.einsum("pij,kpj->kpi", L, rng.standard_normal((20000, P, 2)))
+    spread = np.array([pose_free(d, S, H_x)[0] for d in draws[:4000]])
+    np.testing.assert_allclose(np.einsum("kpi,kpj->pij", spread, spread) / 4000, cov, atol=0.08)
+
+
+def test_serial_correlation_is_learned_from_AR1_errors_and_is_near_zero_without():
+    """Simulated observation errors AR(1) from scan to scan with c = 0.5: the learner's estimate
+    (pose-free) within 0.1 of c; with independent errors (the fixture's runs) below 0.1."""
+    scenario = simulate(ScenarioConfig(seed=1, serial_correlation=0.5, **TRUTH))
+    truth = slam_config_for(scenario, num_particles=PARTICLES)
+    slam = run(scenario, replace_section(truth, noise_learning=NoiseLearningConfig(enabled=True)))
+    learned = slam.learned_noise()
+    assert learned["serial_correlation"] == pytest.approx([0.5, 0.5], abs=0.1)
+    assert learned["sigma_range"] == pytest.approx(TRUTH["sigma_range"], rel=0.10)
+
+
+def test_serial_correlation_moments_give_the_correlation_within_its_limits():
+    rng = np.random.default_rng(7)
+    a = rng.standard_normal((5000, 2))
+    b = 0.6 * a + 0.8 * rng.standard_normal((5000, 2))
+    c = serial_correlation(pair_sample(a, b), 0.95)
+    assert c == pytest.approx((0.6, 0.6), abs=0.03)
+    assert serial_correlation(pair_sample(a, -b), 0.95) == (0.0, 0.0)     # negative: 0
+    assert serial_correlation(pair_sample(a, a), 0.9) == (0.9, 0.9)       # the ceiling

@@ -225,10 +225,16 @@ class ObservationNoiseConfig:
                                 "sigma_r + growth * range.")
     dof: float = param(4.0, 0.5, 1e4, doc="Degrees of freedom of the student_t noise (small: heavy tails; "
                        "large: Gaussian).")
+    serial_correlation: tuple[float, float] = param((0.0, 0.0), 0.0, 0.99, doc="Correlation of a landmark's "
+                                                    "observation errors from one scan to the next (range, "
+                                                    "bearing): each observation then informs as (1 - c) / (1 + c) "
+                                                    "of an independent one (R x (1 + c) / (1 - c) in the "
+                                                    "likelihood and the M-step).")
 
     def validate(self, prefix: str = "noise") -> None:
         weights = _check_length(f"{prefix}.mixture_weights", self.mixture_weights)
         scales = _check_length(f"{prefix}.mixture_scales", self.mixture_scales)
+        _check_length(f"{prefix}.serial_correlation", self.serial_correlation, 2, " (range, bearing)")
         if len(weights) != len(scales):
             raise ValueError(f"{prefix}.mixture_weights and {prefix}.mixture_scales must have the same, non-zero length")
         check_fields(self, prefix)
@@ -349,7 +355,8 @@ class AssociationConfig:
         check_fields(self, prefix, {"new_landmark_probability": {"lo": self.gate_probability, "lo_open": False}})
 
 
-LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "dof", "range_growth", "motion_scale")
+LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "dof", "range_growth", "serial_correlation",
+                   "motion_scale")
 
 
 @dataclass
@@ -362,7 +369,10 @@ class NoiseLearningConfig:
         ``dof`` (the Student-t's degrees of freedom; only with ``noise.model: student_t``),
         ``range_growth`` (sigma_r(r) = sigma_range + range_growth r; not by
         default: without range-dependent noise it trades off against
-        sigma_range) and ``motion_scale`` (one factor on the whole motion noise
+        sigma_range), ``serial_correlation`` (how alike a landmark's
+        observation errors are from one scan to the next: real detectors repeat
+        their errors, so consecutive observations inform less than independent
+        ones) and ``motion_scale`` (one factor on the whole motion noise
         covariance).
     step_size_exponent: gamma_n = n^-exponent (n counts observations) of the
         observation-noise statistics; below 1 the statistics computed under
@@ -388,17 +398,19 @@ class NoiseLearningConfig:
         (this one included) are not used: its estimate is still the inverted
         first observation and its residual says little about R.
     *_limits: (floor, ceiling) of each learned value; correlation_limit bounds
-        |rho| / (sigma_range sigma_bearing); mixture_weight_limits bound each
+        |rho| / (sigma_range sigma_bearing); serial_correlation_limit is the
+        ceiling of the serial correlation (its floor is 0); mixture_weight_limits bound each
         outlier component's weight.  The limits' ranges keep the learned values
         inside what ObservationNoiseConfig / MotionConfig accept.
     """
 
     enabled: bool = param(False, doc="Learn the noise online by EM (noise_learning.learn); the learned values "
                           "are used once warmed up and shown on /diagnostics.")
-    learn: tuple[str, ...] = param(("range", "bearing", "correlation", "mixture", "dof", "motion_scale"),
+    learn: tuple[str, ...] = param(("range", "bearing", "correlation", "mixture", "dof", "serial_correlation",
+                                    "motion_scale"),
                                    choices=LEARNABLE_NOISE, doc="Quantities learned: any of range, bearing, "
                                    "correlation, mixture (with noise.model mixture), dof (with noise.model "
-                                   "student_t), range_growth, motion_scale. "
+                                   "student_t), range_growth, serial_correlation, motion_scale. "
                                    "To learn nothing set enabled false.")
     step_size_exponent: float = param(0.7, 0.5, 1.0, lo_open=True, doc="Step size gamma_n = n^-exponent of the "
                                       "noise statistics.")
@@ -427,6 +439,9 @@ class NoiseLearningConfig:
                                                      "learned range_growth, floor <= ceiling.")
     correlation_limit: float = param(0.9, 0.0, 0.99, doc="Bound on |rho| / (sigma_range sigma_bearing) when "
                                      "learned.")
+    serial_correlation_limit: float = param(0.95, 0.0, 0.99, doc="Ceiling of the learned serial_correlation "
+                                            "(each observation informs at least (1 - c) / (1 + c) of an "
+                                            "independent one).")
     mixture_weight_limits: tuple[float, float] = param((0.001, 0.5), 0.0, 0.5, lo_open=True, doc="Floor and "
                                                        "ceiling of each learned outlier weight, floor <= ceiling.")
     mixture_scale_limits: tuple[float, float] = param((2.0, 1000.0), 1.0, 1e6, lo_open=True, doc="Floor and "

@@ -51,9 +51,10 @@ from ..models.angles import wrap_angle
 from ..config import ObservationNoiseConfig, SensorConfig, SlamConfig
 from .step import FilterStepData
 from ..models.motion import step_jitter
-from ..models.observation import (component_precision_weight, inv_det_2x2, mahalanobis_2d, noise_covariance,
-                                  noise_loglik, student_t_weight)
+from ..models.observation import (component_precision_weight, information_noise, inv_det_2x2, mahalanobis_2d,
+                                  noise_covariance, noise_loglik, student_t_weight)
 from .observed_information import motion_residual
+from .serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation, whitened
 from ..filter.particles import weighted_pose_mean
 
 # Motion noise standard deviations: all of them scale by sqrt(s) when the
@@ -61,7 +62,8 @@ from ..filter.particles import weighted_pose_mean
 MOTION_STDS = ("sigma_speed", "sigma_steering", "sigma_heading", "odometry_translation_std",
                "odometry_rotation_std", "odometry_translation_per_meter", "odometry_rotation_per_radian",
                "odometry_rotation_per_meter")
-OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture", "dof", "range_growth"})
+OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture", "dof", "range_growth",
+                                    "serial_correlation"})
 # Range bins of the sigma_r(r) = a + b r fit, over [0, min(max_range, RANGE_BIN_REACH)]
 # (farther observations share the last bin): the bins only weigh, their means are exact.
 RANGE_BINS, RANGE_BIN_REACH = 16, 100.0
@@ -476,6 +478,8 @@ class NoiseLearner:
             learn.discard("dof")
         self.learn = learn
         self.observations = StochasticAverage(self.settings.step_size_exponent)
+        self.serial = StochasticAverage(self.settings.step_size_exponent)    # consecutive innovations' moments
+        self._previous = PreviousInnovations()
         self.motion = StochasticAverage(self.settings.motion_step_size_exponent)
         self.window = MotionWindow(self.settings.motion_window + 1)
         self._jitter_key, self._jitter = None, None
@@ -509,6 +513,8 @@ class NoiseLearner:
                   "noise_mixture": np.array([noise.mixture_weights, noise.mixture_scales], dtype=float)}
         if noise.model == "student_t":
             values["noise_dof"] = np.array(noise.dof)
+        if any(noise.serial_correlation):
+            values["noise_serial"] = np.array(noise.serial_correlation, dtype=float)
         return values
 
     # ------------------------------------------------------------ what the estimator uses
@@ -555,25 +561,29 @@ class NoiseLearner:
         return self.scale_in_use
 
     # ------------------------------------------------------------ E-step
-    def update(self, data: FilterStepData, n_obs: np.ndarray) -> None:
+    def update(self, data: FilterStepData, n_obs: np.ndarray, ids: np.ndarray | None = None) -> None:
         """Blend in one filter step's statistics and redo the M-step of the noise.
 
         ``n_obs`` (P,): observation counts of the observed landmarks (this one
-        included).
+        included); ``ids`` (P,) their landmark ids (default: their rows).
         """
         if not self.learn:
             return
         n_obs = np.asarray(n_obs)
-        configured, R_in_use = self._configured_R(data)
+        configured, R_filter = self._configured_R(data)
         use = (n_obs >= self.settings.min_landmark_observations) & configured
-        # Both statistics take the same observations under the same (current) estimate; once
-        # warm that is the noise in use, whose R (elementwise in the ranges) is already made.
+        # The statistics take the same observations under the same (current) estimate; once
+        # warm that is the noise in use, whose R (elementwise in the ranges) the filter made
+        # already unless it weighed it for serially correlated errors.
         used = None
         if use.any():
-            R = R_in_use[use] if self.estimate is self._in_use else noise_covariance(self.estimate, data.y[use, 0])
+            made = self.estimate is self._in_use and information_noise(self._in_use) is self._in_use
+            R = R_filter[use] if made else noise_covariance(self.estimate, data.y[use, 0])
             used = _UsedObservations(data, n_obs, use, R)
         if "motion_scale" in self.learn:
             self._update_motion(data, used)              # every step: silence is part of the motion
+        if "serial_correlation" in self.learn and used is not None:
+            self._update_serial(data, used, (data.rows if ids is None else np.asarray(ids))[use])
         if self.learn & OBSERVATION_QUANTITIES and data.rows.size:
             statistics = self._observation_statistics(data, used)
             if statistics is not None:
@@ -622,12 +632,30 @@ class NoiseLearner:
                                np.einsum("n,npc,np->pc", w, latent, q).mean(axis=0)])
 
     def _configured_R(self, data: FilterStepData) -> tuple[np.ndarray, np.ndarray]:
-        """(observations whose R is the one in use (P,), that R (P, 2, 2)); those with their
-        own range_std / bearing_std carry a known noise and say nothing about R."""
-        expected = noise_covariance(self._in_use, data.y[:, 0])
+        """(observations whose R is the filter's from the noise in use (P,), that R (P, 2, 2)); those
+        with their own range_std / bearing_std carry a known noise and say nothing about R."""
+        expected = noise_covariance(information_noise(self._in_use), data.y[:, 0])
         if np.array_equal(data.R, expected):        # the usual case: isclose holds wherever == does
             return np.ones(expected.shape[:-2], dtype=bool), expected
         return np.all(np.isclose(data.R, expected, rtol=1e-9, atol=1e-15), axis=(-1, -2)), expected
+
+    def _update_serial(self, data: FilterStepData, used: _UsedObservations, ids: np.ndarray) -> None:
+        """Pair the scan's whitened posterior-mean innovations with the same landmarks' in the scan
+        before and blend their moments (serial_correlation.py)."""
+        if ids.size < 2:
+            return
+        w = data.weights
+        nu, H = np.einsum("n,npi->pi", w, used.nu), np.einsum("n,npij->pij", w, used.H)
+        S = used.R + used.map_term
+        latent, _ = _latent(self.estimate, nu, S)
+        pose = weighted_pose_mean(data.particles, w)
+        residual, cov, shared = pose_free(nu, S, pose_jacobian_from(H, pose, self.config.sensor), used.map_term)
+        scale = component_precision_weight(self.estimate, latent)
+        z = whitened(residual, cov, scale)
+        previous, paired = self._previous.pair(data.step, ids, z)
+        if previous.shape[0] and np.all(np.isfinite(previous)) and np.all(np.isfinite(z[paired])):
+            share = shared[paired] / np.diagonal(cov[paired], axis1=-2, axis2=-1) * scale[paired, None]
+            self.serial.blend(pair_sample(previous, z[paired], share), previous.shape[0])
 
     def _step_jitter(self) -> np.ndarray:
         """step_jitter of the motion config, made again only when its jitter values change."""
@@ -700,6 +728,8 @@ class NoiseLearner:
             values.update(self._mixture_m_step(stats[2:]))
         if "dof" in self.learn:
             values["dof"] = student_t_dof(float(stats[2]), *s.dof_limits)
+        if "serial_correlation" in self.learn and self.serial.value is not None:
+            values["serial_correlation"] = serial_correlation(self.serial.value, s.serial_correlation_limit)
         return replace(noise, **values)
 
     def _mixture_m_step(self, stats: np.ndarray) -> dict:
@@ -726,6 +756,7 @@ class NoiseLearner:
                 "motion_scale_in_use": "motion_scale" in self.learn and self.motion_scale_warm,
                 "sigma_range": noise.sigma_range, "sigma_bearing": noise.sigma_bearing, "rho": noise.rho,
                 "range_growth": noise.range_growth, "model": noise.model, "dof": noise.dof,
+                "serial_correlation": list(noise.serial_correlation),
                 "mixture_weights": list(noise.mixture_weights), "mixture_scales": list(noise.mixture_scales),
                 "motion_scale": self.scale_estimate, "motion_scale_error": _finite_or_none(self.motion_scale_error())}
 
@@ -736,6 +767,7 @@ class NoiseLearner:
         values = {"noise.model": noise.model, "noise.sigma_range": noise.sigma_range,
                   "noise.sigma_bearing": noise.sigma_bearing, "noise.rho": noise.rho,
                   "noise.range_growth": noise.range_growth, "noise.dof": noise.dof,
+                  "noise.serial_correlation": [float(v) for v in noise.serial_correlation],
                   "noise.mixture_weights": [float(v) for v in noise.mixture_weights],
                   "noise.mixture_scales": [float(v) for v in noise.mixture_scales]}
         root = math.sqrt(self.motion_scale())

@@ -29,9 +29,9 @@ from ..em.step import FilterStepData, MStep
 from .inputs import MotionInput
 from ..mapping.landmarks import LandmarkTable
 from ..em.noise_learning import NoiseLearner
-from ..models.observation import (component_precision_weight, innovation, inv_det_2x2, inverse_observation,
-                          landmark_jacobian, noise_covariance, noise_loglik, predict_observation,
-                          sensor_poses)
+from ..models.observation import (component_precision_weight, information_noise, innovation, inv_det_2x2,
+                                  inverse_observation, landmark_jacobian, noise_covariance, noise_loglik,
+                                  predict_observation, sensor_poses)
 from .particles import (effective_sample_size, normalize_log_weights, sample_gaussians,
                         systematic_resample, weighted_outer, weighted_pose_covariance,
                         weighted_pose_mean, weighted_sum)
@@ -343,7 +343,7 @@ class OnlineEMSlam:
         log_w = log_prior + terms.log_likelihood
         weights = self._normalise(log_w)
         data = self._step_data(particles, weights, prior_weights, ancestors, trans_cov, rows, terms, sensor)
-        self._noise.update(data, self._map.n_obs[rows])          # noise statistics (noise_learning.py)
+        self._noise.update(data, self._map.n_obs[rows], self._map.ids[rows])   # noise statistics (noise_learning.py)
         pose_correction = self._m_step.update(data, self._map)
         self._commit(particles, weights, pose_correction)
         report.n_associated = int(rows.size)
@@ -369,21 +369,22 @@ class OnlineEMSlam:
         if not rows.size:
             return ObservationTerms.empty(n)
         y = np.stack([obs.ranges[obs_idx], obs.bearings[obs_idx]], axis=-1)            # (P, 2)
-        R = noise_covariance(self._noise.noise_config(), obs.ranges[obs_idx],
+        noise = information_noise(self._noise.noise_config())      # serially correlated errors inform less
+        R = noise_covariance(noise, obs.ranges[obs_idx],
                              None if obs.range_std is None else obs.range_std[obs_idx],
                              None if obs.bearing_std is None else obs.bearing_std[obs_idx])
         theta_bar = self._map.theta[rows]                                               # (P, 2)
         nu = innovation(np.broadcast_to(y, (n,) + y.shape).copy(),
                         predict_observation(sensor[:, None, :], theta_bar[None]))        # (N, P, 2)
         H = landmark_jacobian(sensor[:, None, :], theta_bar[None])                      # (N, P, 2, 2)
-        log_likelihood = self._weighting_loglik(rows, nu, H, R)
-        _, resp = noise_loglik(self._noise.noise_config(), nu, np.broadcast_to(R, H.shape))
+        log_likelihood = self._weighting_loglik(noise, rows, nu, H, R)
+        _, resp = noise_loglik(noise, nu, np.broadcast_to(R, H.shape))
         R_inv, _ = inv_det_2x2(R)
-        precision = R_inv[None] * component_precision_weight(self._noise.noise_config(), resp)[..., None, None]
+        precision = R_inv[None] * component_precision_weight(noise, resp)[..., None, None]
         self._map.n_obs[rows] += 1
         return ObservationTerms(y, R, nu, H, precision, log_likelihood)
 
-    def _weighting_loglik(self, rows, nu, H, R) -> np.ndarray:
+    def _weighting_loglik(self, noise, rows, nu, H, R) -> np.ndarray:
         """log g(y | xi^i, theta) summed over the landmarks seen often enough to weight (N,).
 
         With ``inflate_with_map_uncertainty`` the innovation covariance also carries
@@ -397,7 +398,7 @@ class OnlineEMSlam:
         if cfg.em.inflate_with_map_uncertainty:
             cov = self._m_step.covariances(rows)
             S += H @ cov[None] @ np.swapaxes(H, -1, -2)
-        loglik, _ = noise_loglik(self._noise.noise_config(), nu, S)
+        loglik, _ = noise_loglik(noise, nu, S)
         return np.where(weighting[None, :], loglik, 0.0).sum(axis=1)
 
     def _normalise(self, log_w: np.ndarray) -> np.ndarray:
@@ -604,6 +605,8 @@ class OnlineEMSlam:
                         mixture_weights=tuple(map(float, weights)), mixture_scales=tuple(map(float, scales)))
         if "noise_dof" in arrays:
             noise = replace(noise, dof=float(arrays["noise_dof"]))
+        if "noise_serial" in arrays:
+            noise = replace(noise, serial_correlation=tuple(float(v) for v in arrays["noise_serial"]))
         self._noise.start_from(noise, scale)
 
     def save_map(self, path: str) -> None:

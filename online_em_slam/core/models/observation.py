@@ -8,6 +8,7 @@ h = (|theta_k - p|, atan2(dy, dx) - phi), p the sensor position.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -119,6 +120,24 @@ def noise_covariance(noise: ObservationNoiseConfig, ranges: np.ndarray,
     R[..., 1, 1] = sb * sb
     R[..., 0, 1] = R[..., 1, 0] = rho
     return R
+
+
+def information_noise(noise: ObservationNoiseConfig) -> ObservationNoiseConfig:
+    """The noise under which independent observations inform as much as serially correlated ones do.
+
+    A landmark's errors correlated by c from one scan to the next (AR(1)) make the mean of n
+    observations vary as R (1 + c) / (1 - c) / n, not R / n: each observation weighs as
+    (1 - c) / (1 + c) of an independent one.  R's standard deviations scale by the square
+    roots of those factors (range: sigma_range and range_growth; rho by both); ``noise`` itself
+    when uncorrelated.  For the likelihood and the M-step's precision; the gates and distances
+    keep one observation's spread, R.
+    """
+    c_r, c_b = noise.serial_correlation
+    if c_r == 0.0 and c_b == 0.0:
+        return noise
+    f_r, f_b = math.sqrt((1.0 + c_r) / (1.0 - c_r)), math.sqrt((1.0 + c_b) / (1.0 - c_b))
+    return replace(noise, sigma_range=noise.sigma_range * f_r, range_growth=noise.range_growth * f_r,
+                   sigma_bearing=noise.sigma_bearing * f_b, rho=noise.rho * f_r * f_b, serial_correlation=(0.0, 0.0))
 
 
 def inv_det_2x2(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
