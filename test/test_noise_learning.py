@@ -506,23 +506,32 @@ def test_previous_innovations_pair_each_landmark_with_its_observation_in_the_sca
 
 
 def test_pose_free_residuals_are_the_weighted_least_squares_residuals():
-    """r = nu - H_x dX with dX the whitened least-squares pose correction (numpy lstsq), and its
-    covariance S - H_x A^-1 H_x^T against the spread of residuals of simulated innovations."""
+    """r = nu - H_x dX with dX the whitened least-squares pose correction (numpy lstsq); its
+    covariance S - H_x A^-1 H_x^T and the landmark errors' share diag(M D M^T) against the
+    spread of residuals of simulated innovations (landmark errors D plus the rest)."""
     rng = np.random.default_rng(6)
-    P = 6
+    P, draws = 6, 20000
     H_x = rng.standard_normal((P, 2, 3))
     L = rng.standard_normal((P, 2, 2)) * 0.3 + np.eye(2)
-    S = L @ np.swapaxes(L, -1, -2)
+    R = L @ np.swapaxes(L, -1, -2)
+    D = 0.2 * R                                                  # the landmark estimates' errors
+    S = R + D
     nu = rng.standard_normal((P, 2))
-    residual, cov = pose_free(nu, S, H_x)
+    residual, cov, shared = pose_free(nu, S, H_x, D)
     W = np.linalg.cholesky(np.linalg.inv(S))                    # S^-1 = W W^T
     A = np.concatenate(np.swapaxes(W, -1, -2) @ H_x)
     b = np.concatenate(np.einsum("pji,pj->pi", W, nu))
     dX = np.linalg.lstsq(A, b, rcond=None)[0]
     np.testing.assert_allclose(residual, nu - H_x @ dX, atol=1e-10)
-    draws = np.einsum("pij,kpj->kpi", L, rng.standard_normal((20000, P, 2)))
-    spread = np.array([pose_free(d, S, H_x)[0] for d in draws[:4000]])
-    np.testing.assert_allclose(np.einsum("kpi,kpj->pij", spread, spread) / 4000, cov, atol=0.08)
+    landmark = np.einsum("pij,kpj->kpi", np.linalg.cholesky(D), rng.standard_normal((draws, P, 2)))
+    rest = np.einsum("pij,kpj->kpi", np.linalg.cholesky(R), rng.standard_normal((draws, P, 2)))
+    M = np.eye(2 * P) - A @ np.linalg.pinv(A)                   # whitened projection, applied below
+    def project(e):                                             # the residuals of innovations e (draws, P, 2)
+        white = np.einsum("pji,kpj->kpi", W, e).reshape(draws, 2 * P) @ M.T
+        return np.einsum("pij,kpj->kpi", np.linalg.inv(np.swapaxes(W, -1, -2)), white.reshape(draws, P, 2))
+    r_landmark, r_all = project(landmark), project(landmark + rest)
+    np.testing.assert_allclose(np.einsum("kpi,kpj->pij", r_all, r_all) / draws, cov, atol=0.05)
+    np.testing.assert_allclose((r_landmark ** 2).mean(axis=0), shared, atol=0.01)
 
 
 def test_serial_correlation_is_learned_from_AR1_errors_and_is_near_zero_without():
@@ -537,10 +546,15 @@ def test_serial_correlation_is_learned_from_AR1_errors_and_is_near_zero_without(
 
 
 def test_serial_correlation_moments_give_the_correlation_within_its_limits():
+    """Pairs correlated by 0.6 in their own errors plus a shared part of variance m (a landmark's
+    error) whose known share is taken out: 0.6; negative: 0; at the ceiling."""
     rng = np.random.default_rng(7)
-    a = rng.standard_normal((5000, 2))
-    b = 0.6 * a + 0.8 * rng.standard_normal((5000, 2))
-    c = serial_correlation(pair_sample(a, b), 0.95)
-    assert c == pytest.approx((0.6, 0.6), abs=0.03)
-    assert serial_correlation(pair_sample(a, -b), 0.95) == (0.0, 0.0)     # negative: 0
-    assert serial_correlation(pair_sample(a, a), 0.9) == (0.9, 0.9)       # the ceiling
+    n, m = 20000, 0.25
+    shared = math.sqrt(m) * rng.standard_normal((n, 2))
+    own = rng.standard_normal((n, 2))
+    a = shared + math.sqrt(1 - m) * own
+    b = shared + math.sqrt(1 - m) * (0.6 * own + 0.8 * rng.standard_normal((n, 2)))
+    share = np.full((n, 2), m)
+    assert serial_correlation(pair_sample(a, b, share), 0.95) == pytest.approx((0.6, 0.6), abs=0.02)
+    assert serial_correlation(pair_sample(a, -b, share), 0.95) == (0.0, 0.0)        # negative: 0
+    assert serial_correlation(pair_sample(a, a, 0 * share), 0.9) == (0.9, 0.9)      # the ceiling

@@ -10,10 +10,14 @@ the mean of n observations varies as R (1 + c) / (1 - c) / n
 (``models.observation.information_noise``).
 
 The statistic pairs each observation with the same landmark's observation in the scan
-before, both as whitened posterior-mean innovations z = nubar / sqrt(diag S) scaled by the
-square root of the noise model's precision factor (an outlier counts as in the likelihood):
+before, both as whitened residuals z = r / sqrt(diag cov r) of the posterior-mean innovations
+after a pose correction from the scan alone (``pose_free``: the filter's pose error lasts too),
+scaled by the square root of the noise model's precision factor (an outlier counts as in the
+likelihood):
 
-    c_j = E[z_prev,j z_j] / sqrt(E[z_prev,j^2] E[z_j^2]),   j = range, bearing
+    c_j = (E[z_prev,j z_j] - m_j) / sqrt((E[z_prev,j^2] - m_j) (E[z_j^2] - m_j)),   j = range, bearing
+
+m_j the landmark estimate's share of z's variance after the pose correction (``pose_free``).
 """
 from __future__ import annotations
 
@@ -96,13 +100,15 @@ def whitened(nu: np.ndarray, S: np.ndarray, precision_weight: np.ndarray) -> np.
 
 
 def pair_sample(previous: np.ndarray, current: np.ndarray, shared: np.ndarray) -> np.ndarray:
-    """The step's mean of [z_prev z - m, z_prev^2, z^2] per component (6,), from pairs (Q, 2), Q > 0.
+    """The step's mean of [z_prev z, z_prev^2, z^2] less ``shared`` per component (6,), from pairs
+    (Q, 2), Q > 0: the moments of the observation errors' own parts.
 
     ``shared`` m (Q, 2): the part of z's variance that is the landmark estimate's error, which
     both innovations of a pair carry even when the observation errors are independent.
     """
-    return np.concatenate([(previous * current - shared).mean(axis=0), (previous ** 2).mean(axis=0),
-                           (current ** 2).mean(axis=0)])
+    m = shared.mean(axis=0)
+    return np.concatenate([(previous * current).mean(axis=0) - m, (previous ** 2).mean(axis=0) - m,
+                           (current ** 2).mean(axis=0) - m])
 
 
 def serial_correlation(moments: np.ndarray, limit: float) -> tuple[float, float]:
