@@ -400,18 +400,20 @@ def test_learned_noise_travels_with_the_map_file(tmp_path):
     starts from it at once; with learning off, or a corrupt noise entry, nothing changes."""
     from online_em_slam.core.mapping import mapfile
 
-    scenario = simulate(ScenarioConfig(seed=1, n_steps=400, **TRUTH))
+    scenario = simulate(ScenarioConfig(seed=1, n_steps=400, serial_correlation=0.5, **TRUTH))
     config = started_wrong(slam_config_for(scenario, num_particles=20), 3.0)
     slam = run(scenario, config)
     path = str(tmp_path / "map.npz")
     slam.save_map(path)
     in_use = slam.learned_noise_parameters()
     assert in_use["noise.sigma_range"] != config.noise.sigma_range          # learned and in use
+    assert min(in_use["noise.serial_correlation"]) > 0.2
 
     fresh = OnlineEMSlam(config, initial_pose=scenario.initial_pose)
     fresh.load_map(path)
     restored = fresh.learned_noise_parameters()
-    for key in ("noise.sigma_range", "noise.sigma_bearing", "noise.mixture_weights", "motion.sigma_speed"):
+    for key in ("noise.sigma_range", "noise.sigma_bearing", "noise.mixture_weights", "noise.serial_correlation",
+                "motion.sigma_speed"):
         assert restored[key] == pytest.approx(in_use[key], rel=1e-12)
 
     off = OnlineEMSlam(replace_section(config, noise_learning=NoiseLearningConfig(enabled=False)),
@@ -422,6 +424,10 @@ def test_learned_noise_travels_with_the_map_file(tmp_path):
     arrays = dict(np.load(path))
     arrays["noise"] = arrays["noise"] * np.array([-1.0, 1, 1, 1, 1])             # negative sigma_range
     with pytest.raises(mapfile.MapFileError, match="noise"):
+        mapfile.check_map(arrays)
+    arrays = dict(np.load(path))
+    arrays["noise_serial"] = np.array([0.5, 1.0])                               # beyond 0.99
+    with pytest.raises(mapfile.MapFileError, match="noise_serial"):
         mapfile.check_map(arrays)
 
 

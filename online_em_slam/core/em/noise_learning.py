@@ -2,8 +2,9 @@
 "Noise learned online").
 
 The observation noise R (sigma_r, sigma_b, rho), the mixture weights and
-outlier scales, the range-dependent range noise sigma_r(r) = a + b r and one
-scale s on the motion noise are parameters of the same HMM as the map, so the
+outlier scales, the range-dependent range noise sigma_r(r) = a + b r, the serial
+correlation of a landmark's errors (serial_correlation.py) and one scale s on
+the motion noise are parameters of the same HMM as the map, so the
 filter's E-step estimates them too.  Each filter step turns the posterior
 particles into *sufficient statistics* of these parameters; the statistics are
 averaged by stochastic approximation (S <- S + gamma_n (s_t - S),
