@@ -22,6 +22,12 @@ from .observed_information import ObservedInformation, StepFactors, motion_resid
 from ..filter.particles import symmetric_inverse_3x3, weighted_pose_mean
 from .statistics import STAT_DIM, unpack
 
+# Under heavy-tailed noise a landmark's first observation cannot be checked against anything:
+# it places the landmark with the weight of a diffuse prior (R x 1000) and the later, checked
+# observations carry the estimate.  At full weight a first observation that is an outlier held
+# the landmark there, the true observations judged outliers against it (docs/RESULTS.md).
+FIRST_OBSERVATION_WEIGHT = 1e-3
+
 
 class ObservedInformationEM:
     """Segments of K filter steps; the map solved from the joint information at segment ends."""
@@ -67,13 +73,18 @@ class ObservedInformationEM:
         """Motion and observation factors at the weighted mean pose xbar_t.
 
         The observation precision is R^-1 weighted by the particles' mixture
-        responsibilities, averaged under the filtering weights.
+        responsibilities, averaged under the filtering weights; with heavy-tailed
+        noise a landmark's first observation enters the map's system with
+        FIRST_OBSERVATION_WEIGHT (the gate's per-landmark information keeps it in full).
         """
         pose = weighted_pose_mean(data.particles, data.weights)
         precision = np.einsum("n,npij->pij", data.weights, data.precision)
         if data.rows.size:
             H = landmark_jacobian(sensor_poses(pose, self.config.sensor)[None], table.theta[data.rows])
             np.add.at(self.information, data.rows, np.swapaxes(H, -1, -2) @ precision @ H)
+            if self.config.noise.model != "gaussian":
+                first = table.n_obs[data.rows] == 1                  # counted already: this is the first
+                precision = np.where(first[:, None, None], FIRST_OBSERVATION_WEIGHT * precision, precision)
         W = symmetric_inverse_3x3(data.motion_cov[None])[0][0]
         return StepFactors(pose, data.motion_jacobian, motion_residual(data.motion_mean, pose), W,
                            data.rows.copy(), data.y.copy(), precision)
