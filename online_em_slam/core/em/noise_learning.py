@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 from scipy.optimize import brentq
@@ -450,16 +451,28 @@ def _clip(x: float, low: float, high: float) -> float:
 
 
 class _UsedObservations:
-    """The step's observations that inform the noise (``use``) and what both statistics take
+    """The step's observations that inform the noise (``use``) and what the statistics take
     of them, computed once: ranges (P,), counts n_k (P,), innovations nu (N, P, 2), Jacobians
-    H (N, P, 2, 2), their R (P, 2, 2) under the current estimate and the map term
-    R / (n_k - 1) (P, 2, 2)."""
+    H (N, P, 2, 2), their R (P, 2, 2) under the current estimate ``noise`` and the map term
+    R / (n_k - 1) (P, 2, 2); ``scan`` their posterior means at the mean ``pose``."""
 
-    def __init__(self, data: FilterStepData, n_obs: np.ndarray, use: np.ndarray, R: np.ndarray) -> None:
+    def __init__(self, data: FilterStepData, n_obs: np.ndarray, use: np.ndarray, R: np.ndarray,
+                 pose: np.ndarray, sensor: SensorConfig, noise: ObservationNoiseConfig) -> None:
         self.ranges, self.n_obs = data.y[use, 0], n_obs[use]
         self.nu, self.H = data.nu[:, use], data.H[:, use]
         self.R = R
         self.map_term = map_uncertainty(R, self.n_obs)
+        self._mean_of = (data.weights, pose, sensor, noise)
+
+    @cached_property
+    def scan(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(posterior-mean innovations nubar (P, 2), pose Jacobians H_x (P, 2, 3) at the mean pose,
+        the noise model's precision factors at nubar (P,)): shared by the motion and serial statistics."""
+        w, pose, sensor, noise = self._mean_of
+        nu = np.einsum("n,npi->pi", w, self.nu)
+        H = np.einsum("n,npij->pij", w, self.H)
+        latent, _ = _latent(noise, nu, self.R + self.map_term)
+        return nu, pose_jacobian_from(H, pose, sensor), component_precision_weight(noise, latent)
 
 
 class NoiseLearner:
@@ -571,20 +584,22 @@ class NoiseLearner:
         if not self.learn:
             return
         n_obs = np.asarray(n_obs)
-        configured, R_filter = self._configured_R(data)
+        weighed = information_noise(self._in_use)
+        configured, R_filter = self._configured_R(data, weighed)
         use = (n_obs >= self.settings.min_landmark_observations) & configured
+        pose = weighted_pose_mean(data.particles, data.weights)
         # The statistics take the same observations under the same (current) estimate; once
         # warm that is the noise in use, whose R (elementwise in the ranges) the filter made
         # already unless it weighed it for serially correlated errors.
         used = None
         if use.any():
-            made = self.estimate is self._in_use and information_noise(self._in_use) is self._in_use
+            made = self.estimate is self._in_use and weighed is self._in_use
             R = R_filter[use] if made else noise_covariance(self.estimate, data.y[use, 0])
-            used = _UsedObservations(data, n_obs, use, R)
+            used = _UsedObservations(data, n_obs, use, R, pose, self.config.sensor, self.estimate)
         if "motion_scale" in self.learn:
-            self._update_motion(data, used)              # every step: silence is part of the motion
+            self._update_motion(data, used, pose)        # every step: silence is part of the motion
         if "serial_correlation" in self.learn and used is not None:
-            self._update_serial(data, used, (data.rows if ids is None else np.asarray(ids))[use])
+            self._update_serial(data.step, used, (data.rows if ids is None else np.asarray(ids))[use])
         if self.learn & OBSERVATION_QUANTITIES and data.rows.size:
             statistics = self._observation_statistics(data, used)
             if statistics is not None:
@@ -632,28 +647,24 @@ class NoiseLearner:
         return np.concatenate([np.einsum("n,npc->pc", w, latent).mean(axis=0),
                                np.einsum("n,npc,np->pc", w, latent, q).mean(axis=0)])
 
-    def _configured_R(self, data: FilterStepData) -> tuple[np.ndarray, np.ndarray]:
-        """(observations whose R is the filter's from the noise in use (P,), that R (P, 2, 2)); those
-        with their own range_std / bearing_std carry a known noise and say nothing about R."""
-        expected = noise_covariance(information_noise(self._in_use), data.y[:, 0])
+    def _configured_R(self, data: FilterStepData, weighed: ObservationNoiseConfig) -> tuple[np.ndarray, np.ndarray]:
+        """(observations whose R is the filter's, from ``weighed``, the noise in use as the filter
+        weighs it (P,), that R (P, 2, 2)); those with their own range_std / bearing_std carry a
+        known noise and say nothing about R."""
+        expected = noise_covariance(weighed, data.y[:, 0])
         if np.array_equal(data.R, expected):        # the usual case: isclose holds wherever == does
             return np.ones(expected.shape[:-2], dtype=bool), expected
         return np.all(np.isclose(data.R, expected, rtol=1e-9, atol=1e-15), axis=(-1, -2)), expected
 
-    def _update_serial(self, data: FilterStepData, used: _UsedObservations, ids: np.ndarray) -> None:
-        """Pair the scan's whitened posterior-mean innovations with the same landmarks' in the scan
+    def _update_serial(self, step: int, used: _UsedObservations, ids: np.ndarray) -> None:
+        """Pair the scan's whitened pose-free innovations with the same landmarks' in the scan
         before and blend their moments (serial_correlation.py)."""
         if ids.size < 2:
             return
-        w = data.weights
-        nu, H = np.einsum("n,npi->pi", w, used.nu), np.einsum("n,npij->pij", w, used.H)
-        S = used.R + used.map_term
-        latent, _ = _latent(self.estimate, nu, S)
-        pose = weighted_pose_mean(data.particles, w)
-        residual, cov, shared = pose_free(nu, S, pose_jacobian_from(H, pose, self.config.sensor), used.map_term)
-        scale = component_precision_weight(self.estimate, latent)
+        nu, H_x, scale = used.scan
+        residual, cov, shared = pose_free(nu, used.R + used.map_term, H_x, used.map_term)
         z = whitened(residual, cov, scale)
-        previous, paired = self._previous.pair(data.step, ids, z)
+        previous, paired = self._previous.pair(step, ids, z)
         if previous.shape[0] and np.all(np.isfinite(previous)) and np.all(np.isfinite(z[paired])):
             share = shared[paired] / np.diagonal(cov[paired], axis1=-2, axis2=-1) * scale[paired, None]
             self.serial.blend(pair_sample(previous, z[paired], share), previous.shape[0])
@@ -666,18 +677,17 @@ class NoiseLearner:
             self._jitter_key, self._jitter = key, step_jitter(motion)
         return self._jitter
 
-    def _update_motion(self, data: FilterStepData, used: _UsedObservations | None) -> None:
+    def _update_motion(self, data: FilterStepData, used: _UsedObservations | None, pose: np.ndarray) -> None:
         """Push the step into the window; at a scan of known landmarks, blend (M) of the window."""
         scale = self.motion_scale()
         jitter = self._step_jitter()
-        pose = weighted_pose_mean(data.particles, data.weights)
         dev = data.particles - pose
         dev[:, 2] = wrap_angle(dev[:, 2])
         self.window.append(motion_residual(data.motion_mean, pose), data.motion_jacobian,
                            (data.motion_cov - jitter) / scale, jitter, np.einsum("n,ni,nj->ij", data.weights, dev, dev))
         if not self.window.full or used is None or not self._observation_noise_settled:
             return
-        sample = prediction_statistic(self.window.steps, *self._scan_terms(data, used, pose))
+        sample = prediction_statistic(self.window.steps, *self._scan_terms(used))
         if sample is None:
             return
         a, b = sample
@@ -692,19 +702,15 @@ class NoiseLearner:
             ratio = _clip(self.scale_estimate / self.scale_in_use, *_SCALE_RATIO)
             self.scale_in_use = float(self.scale_in_use * ratio)
 
-    def _scan_terms(self, data: FilterStepData, used: _UsedObservations, pose: np.ndarray):
+    @staticmethod
+    def _scan_terms(used: _UsedObservations):
         """(H_x (P, 2, 3), posterior mean innovation (P, 2), noise covariance (P, 2, 2)) of the scan.
 
         The noise is the learned R (an outlier's divided by its E-step precision factor,
         so it weighs as in the likelihood) plus the map term H Sigma H^T.
         """
-        w, noise = data.weights, self.estimate
-        nu = np.einsum("n,npi->pi", w, used.nu)
-        H = np.einsum("n,npij->pij", w, used.H)
-        cov, map_term = used.R, used.map_term
-        latent, _ = _latent(noise, nu, cov + map_term)
-        cov = cov / component_precision_weight(noise, latent)[:, None, None] + map_term
-        return pose_jacobian_from(H, pose, self.config.sensor), nu, cov
+        nu, H_x, factor = used.scan
+        return H_x, nu, used.R / factor[:, None, None] + used.map_term
 
     # ------------------------------------------------------------ M-step
     def _observation_m_step(self, stats: np.ndarray) -> ObservationNoiseConfig:

@@ -82,13 +82,8 @@ def pose_free(nu: np.ndarray, S: np.ndarray, H_x: np.ndarray, D: np.ndarray | No
     cov = S - H_x @ A_inv @ np.swapaxes(H_x, -1, -2)
     if D is None:
         return residual, cov, None
-    H_flat = H_x.reshape(2 * P, 3)
-    M = np.eye(2 * P) - H_flat @ A_inv @ np.swapaxes(HtSi, 0, 1).reshape(3, 2 * P)
-    D_flat = np.zeros((2 * P, 2 * P))
-    for j in range(2):                      # block diagonal from P blocks (2, 2): four strided views
-        for k in range(2):
-            D_flat[j::2, k::2][np.arange(P), np.arange(P)] = D[:, j, k]
-    shared = np.einsum("ij,jk,ik->i", M, D_flat, M).reshape(P, 2)
+    M = np.eye(2 * P).reshape(2 * P, P, 2) - np.einsum("ia,ab,qbc->iqc", H_x.reshape(2 * P, 3), A_inv, HtSi)
+    shared = np.einsum("iqa,qab,iqb->i", M, D, M).reshape(P, 2)        # D block diagonal: blockwise
     return residual, cov, shared
 
 
