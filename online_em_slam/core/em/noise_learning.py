@@ -472,7 +472,22 @@ class _UsedObservations:
         nu = np.einsum("n,npi->pi", w, self.nu)
         H = np.einsum("n,npij->pij", w, self.H)
         latent, _ = _latent(noise, nu, self.R + self.map_term)
+        self._latent_at_mean = latent
         return nu, pose_jacobian_from(H, pose, sensor), component_precision_weight(noise, latent)
+
+    @cached_property
+    def variance_factor(self) -> np.ndarray:
+        """The factor on R of each observation's noise variance (P,), for the motion statistic's
+        K: under the mixture the scale of the likelier component (exactly 1 for an inlier),
+        otherwise 1 / the precision factor.  Not the precision factor's inverse under the
+        mixture: an inlier with some responsibility for the outlier component would count
+        more variance than it has, and the statistic, which subtracts K, would learn a
+        motion scale 5 % low (docs/RESULTS.md)."""
+        _, _, factor = self.scan
+        noise = self._mean_of[3]
+        if noise.model != "mixture":
+            return 1.0 / factor
+        return np.asarray(noise.mixture_scales, dtype=float)[np.argmax(self._latent_at_mean, axis=-1)]
 
 
 class NoiseLearner:
@@ -706,11 +721,11 @@ class NoiseLearner:
     def _scan_terms(used: _UsedObservations):
         """(H_x (P, 2, 3), posterior mean innovation (P, 2), noise covariance (P, 2, 2)) of the scan.
 
-        The noise is the learned R (an outlier's divided by its E-step precision factor,
-        so it weighs as in the likelihood) plus the map term H Sigma H^T.
+        The noise is the learned R times each observation's variance factor (an outlier's
+        wider) plus the map term H Sigma H^T.
         """
-        nu, H_x, factor = used.scan
-        return H_x, nu, used.R / factor[:, None, None] + used.map_term
+        nu, H_x, _ = used.scan
+        return H_x, nu, used.R * used.variance_factor[:, None, None] + used.map_term
 
     # ------------------------------------------------------------ M-step
     def _observation_m_step(self, stats: np.ndarray) -> ObservationNoiseConfig:

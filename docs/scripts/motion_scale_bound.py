@@ -1,0 +1,140 @@
+"""How well can any estimator know the motion scale from one simulated run?  The Cramer-Rao bound.
+
+    python docs/scripts/motion_scale_bound.py [--seeds 1-10] [--steps 1500] [--output FILE]
+
+The scenario of test/test_noise_learning.py.  The model linearised about the true
+trajectory: the control noise w_t ~ N(0, s V) (2 per step) moves the poses
+x = L G w (L the transition's products Phi(t, k), G = df/du), the scan's inliers
+(the outliers left out: an oracle) y = A_x x + A_m m + e, e ~ N(0, R).  With
+B~ = V^1/2 G^T L^T A_x^T R^-1 A_x L G V^1/2 and its eigenvalues l_i, the Fisher
+information about s at s = 1 is
+
+    I = 1/2 sum_i (l_i / (1 + l_i))^2
+
+(a Gaussian's information about a covariance parameter).  Two versions: the map
+known, and the map a nuisance parameter (restricted likelihood: the data projected
+off the columns of A_m).  1 / sqrt(I) is the smallest standard deviation of any
+unbiased estimate of s from the run.  Prints it per seed next to the learner's
+scale in docs/measurements/noise_learning_seeds_first_observation.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "test"))
+from test_noise_learning import TRUTH  # noqa: E402
+
+from online_em_slam.simulation import ScenarioConfig, simulate  # noqa: E402
+
+MEASURED = Path(__file__).resolve().parents[1] / "measurements" / "noise_learning_seeds_first_observation.json"
+
+
+def motion_jacobians(poses: np.ndarray, controls: np.ndarray, dt: float, wheelbase: float):
+    """F_t = df/dx (T, 3, 3) and G_t = df/du (T, 3, 2) of the bicycle step at the true poses and controls."""
+    v, psi = controls[:, 0], controls[:, 1]
+    heading = poses[:-1, 2] + psi
+    c, s = np.cos(heading), np.sin(heading)
+    T = len(controls)
+    F = np.tile(np.eye(3), (T, 1, 1))
+    F[:, 0, 2], F[:, 1, 2] = -v * dt * s, v * dt * c
+    G = np.stack([np.stack([dt * c, -v * dt * s], -1), np.stack([dt * s, v * dt * c], -1),
+                  np.stack([dt * np.sin(psi) / wheelbase, v * dt * np.cos(psi) / wheelbase], -1)], 1)
+    return F, G
+
+
+def observation_jacobians(pose: np.ndarray, landmarks: np.ndarray):
+    """dh/dx (P, 2, 3) and dh/dm (P, 2, 2) of range and bearing."""
+    d = landmarks - pose[:2]
+    q = np.sum(d * d, axis=1)
+    r = np.sqrt(q)
+    Hm = np.stack([np.stack([d[:, 0] / r, d[:, 1] / r], -1), np.stack([-d[:, 1] / q, d[:, 0] / q], -1)], 1)
+    Hx = np.concatenate([-Hm, np.array([0.0, -1.0])[None, :, None].repeat(len(d), 0)], axis=2)
+    return Hx, Hm
+
+
+def transfer(F: np.ndarray) -> np.ndarray:
+    """L (3T, 3T): block (t, k) = Phi(t, k) = F_t ... F_{k+1} for k <= t (pose t after step t's noise)."""
+    T = len(F)
+    L = np.zeros((3 * T, 3 * T))
+    for t in range(T):
+        L[3 * t:3 * t + 3, 3 * t:3 * t + 3] = np.eye(3)
+        if t:
+            L[3 * t:3 * t + 3, :3 * t] = F[t] @ L[3 * t - 3:3 * t, :3 * t]
+    return L
+
+
+def fisher_information(seed: int, steps: int) -> dict:
+    scenario = simulate(ScenarioConfig(seed=seed, outlier_probability=0.1, n_steps=steps, **TRUTH))
+    cfg = scenario.config
+    F, G = motion_jacobians(scenario.true_poses, scenario.true_controls, cfg.dt, cfg.wheelbase)
+    R_inv = np.diag([1 / cfg.sigma_range ** 2, 1 / cfg.sigma_bearing ** 2])
+    T, M = len(F), len(scenario.landmarks)
+    B = np.zeros((T, 3, 3))                         # A_x^T R^-1 A_x, block diagonal
+    C = np.zeros((T, 3, 2 * M))                     # A_x^T R^-1 A_m
+    D = np.zeros((2 * M, 2 * M))                    # A_m^T R^-1 A_m
+    for t, step in enumerate(scenario.steps):
+        ids = step.true_ids[~step.outlier]
+        Hx, Hm = observation_jacobians(scenario.true_poses[t + 1], scenario.landmarks[ids])
+        B[t] = np.einsum("pai,ab,pbj->ij", Hx, R_inv, Hx)
+        for p, k in enumerate(ids):
+            C[t, :, 2 * k:2 * k + 2] = Hx[p].T @ R_inv @ Hm[p]
+            D[2 * k:2 * k + 2, 2 * k:2 * k + 2] += Hm[p].T @ R_inv @ Hm[p]
+    root_V = np.array([cfg.sigma_speed, cfg.sigma_steering])
+    LG = transfer(F) @ _block_diagonal(G * root_V)          # (3T, 2T): x = LG w, w ~ N(0, s I)
+    Bd = _block_diagonal(B)
+    known = LG.T @ Bd @ LG
+    seen = np.flatnonzero(np.diag(D) > 0)
+    cross = LG.T @ C.reshape(3 * T, 2 * M)[:, seen]
+    nuisance = known - cross @ np.linalg.solve(D[np.ix_(seen, seen)], cross.T)
+    info = {name: 0.5 * float(np.sum((lam / (1 + lam)) ** 2))
+            for name, lam in (("map known", np.linalg.eigvalsh(known)), ("map estimated", np.linalg.eigvalsh(nuisance)))}
+    return {name: 1 / math.sqrt(value) for name, value in info.items()}
+
+
+def _block_diagonal(blocks: np.ndarray) -> np.ndarray:
+    """(T, a, b) -> (T a, T b)."""
+    T, a, b = blocks.shape
+    out = np.zeros((T, a, T, b))
+    out[np.arange(T), :, np.arange(T), :] = blocks
+    return out.reshape(T * a, T * b)
+
+
+def learned_scales() -> dict:
+    if not MEASURED.exists():
+        return {}
+    data = json.loads(MEASURED.read_text())
+    return {row["seed"]: (row["3x too large"]["motion_scale"], row["3x too small"]["motion_scale"])
+            for part in data.values() if isinstance(part, dict) for row in part["runs"]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", default="1-10")
+    parser.add_argument("--steps", type=int, default=1500)
+    parser.add_argument("--output", type=Path)
+    args = parser.parse_args()
+    first, last = map(int, args.seeds.split("-"))
+    learned = learned_scales()
+    rows = []
+    for seed in range(first, last + 1):
+        bound = fisher_information(seed, args.steps)
+        rows.append({"seed": seed, **bound, "learned": learned.get(seed)})
+        print(seed, {k: round(v, 4) for k, v in bound.items()}, learned.get(seed), flush=True)
+    for name in ("map known", "map estimated"):
+        print(f"bound on the relative standard deviation, {name}: mean {np.mean([r[name] for r in rows]):.4f}")
+    scales = np.array([r["learned"] for r in rows if r["learned"]])
+    if scales.size:
+        print(f"learned (from 9x, from 1/9x): RMS error {np.sqrt(np.mean((scales - 1) ** 2, axis=0)).round(4)}, "
+              f"SD {scales.std(axis=0, ddof=1).round(4)}, mean {scales.mean(axis=0).round(4)}")
+    if args.output:
+        args.output.write_text(json.dumps({"steps": args.steps, "rows": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
