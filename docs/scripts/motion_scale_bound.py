@@ -1,6 +1,7 @@
 """How well can any estimator know the motion scale from one simulated run?  The Cramer-Rao bound.
 
-    python docs/scripts/motion_scale_bound.py [--seeds 1-10] [--steps 1500] [--output FILE]
+    python docs/scripts/motion_scale_bound.py [--seeds 1-10] [--steps 1500] [--learned FILE] [--output FILE]
+    python docs/scripts/motion_scale_bound.py --check
 
 The scenario of test/test_noise_learning.py.  The model linearised about the true
 trajectory: the control noise w_t ~ N(0, s V) (2 per step) moves the poses
@@ -15,7 +16,8 @@ information about s at s = 1 is
 known, and the map a nuisance parameter (restricted likelihood: the data projected
 off the columns of A_m).  1 / sqrt(I) is the smallest standard deviation of any
 unbiased estimate of s from the run.  Prints it per seed next to the learner's
-scale in docs/measurements/noise_learning_seeds_first_observation.json.
+scales in a noise_learning_seeds.py output (--learned).  --check compares the
+eigenvalue form with 1/2 tr((S^-1 dS/ds)^2) of the dense data covariance on 40 steps.
 """
 from __future__ import annotations
 
@@ -105,10 +107,37 @@ def _block_diagonal(blocks: np.ndarray) -> np.ndarray:
     return out.reshape(T * a, T * b)
 
 
-def learned_scales() -> dict:
-    if not MEASURED.exists():
+def dense_check(seed: int = 3, steps: int = 40) -> None:
+    """The eigenvalue forms against 1/2 tr((S^-1 dS)^2) and its restricted version, S the
+    data's covariance A_x L G G^T L^T A_x^T + R built densely."""
+    scenario = simulate(ScenarioConfig(seed=seed, outlier_probability=0.1, n_steps=steps, **TRUTH))
+    cfg = scenario.config
+    F, G = motion_jacobians(scenario.true_poses, scenario.true_controls, cfg.dt, cfg.wheelbase)
+    Ax, Am = [], []
+    for t, step in enumerate(scenario.steps):
+        ids = step.true_ids[~step.outlier]
+        Hx, Hm = observation_jacobians(scenario.true_poses[t + 1], scenario.landmarks[ids])
+        for p, k in enumerate(ids):
+            row_x, row_m = np.zeros((2, 3 * steps)), np.zeros((2, 2 * len(scenario.landmarks)))
+            row_x[:, 3 * t:3 * t + 3], row_m[:, 2 * k:2 * k + 2] = Hx[p], Hm[p]
+            Ax.append(row_x)
+            Am.append(row_m)
+    Ax, Am = np.vstack(Ax), np.vstack(Am)
+    Am = Am[:, np.abs(Am).sum(axis=0) > 0]
+    LG = transfer(F) @ _block_diagonal(G * np.array([cfg.sigma_speed, cfg.sigma_steering]))
+    dS = Ax @ LG @ LG.T @ Ax.T
+    S_inv = np.linalg.inv(dS + np.diag(np.tile([cfg.sigma_range ** 2, cfg.sigma_bearing ** 2], len(Ax) // 2)))
+    Pi = S_inv - S_inv @ Am @ np.linalg.solve(Am.T @ S_inv @ Am, Am.T @ S_inv)
+    dense = {"map known": 1 / math.sqrt(0.5 * np.trace(S_inv @ dS @ S_inv @ dS)),
+             "map estimated": 1 / math.sqrt(0.5 * np.trace(Pi @ dS @ Pi @ dS))}
+    print("dense:", dense)
+    print("eigenvalues:", fisher_information(seed, steps))
+
+
+def learned_scales(path: Path) -> dict:
+    if not path.exists():
         return {}
-    data = json.loads(MEASURED.read_text())
+    data = json.loads(path.read_text())
     return {row["seed"]: (row["3x too large"]["motion_scale"], row["3x too small"]["motion_scale"])
             for part in data.values() if isinstance(part, dict) for row in part["runs"]}
 
@@ -117,10 +146,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="1-10")
     parser.add_argument("--steps", type=int, default=1500)
+    parser.add_argument("--learned", type=Path, default=MEASURED)
     parser.add_argument("--output", type=Path)
+    parser.add_argument("--check", action="store_true")
     args = parser.parse_args()
+    if args.check:
+        dense_check()
+        return
     first, last = map(int, args.seeds.split("-"))
-    learned = learned_scales()
+    learned = learned_scales(args.learned)
     rows = []
     for seed in range(first, last + 1):
         bound = fisher_information(seed, args.steps)
