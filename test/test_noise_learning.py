@@ -10,16 +10,19 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from online_em_slam.core import OnlineEMSlam
-from online_em_slam.core.config import NoiseLearningConfig, SlamConfig, replace_section
-from online_em_slam.core.em.noise_learning import (NoiseLearner, RangeBins, StochasticAverage, batch_step_size,
-                                                map_share, map_uncertainty, range_noise_fit, ratio_error)
+from online_em_slam.core.config import (NoiseLearningConfig, ObservationNoiseConfig, SensorConfig, SlamConfig,
+                                        replace_section)
+from online_em_slam.core.em.noise_learning import (MotionSteps, NoiseLearner, RangeBins, StochasticAverage,
+                                                _UsedObservations, batch_step_size, map_share, map_uncertainty,
+                                                prediction_statistic, range_noise_fit, ratio_error)
 from online_em_slam.core.em.serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation
-from online_em_slam.core.models.observation import information_noise
+from online_em_slam.core.models.observation import information_noise, noise_covariance
 from online_em_slam.core.types import Observations
 from online_em_slam.evaluation import landmark_pairs_by_id, map_error_split
 from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for
@@ -129,6 +132,57 @@ def test_motion_scale_error_counts_the_overlap_of_the_windows():
         errors.append(learner.motion_scale_error())
     estimates = b.mean(axis=1)
     assert np.mean(errors) == pytest.approx(estimates.std() / estimates.mean(), rel=0.1)
+
+
+@pytest.mark.parametrize("weight_scale", [1.0, 9.0])
+def test_the_prediction_statistic_is_unbiased_whatever_scale_weighs_it(weight_scale):
+    """(M) against pose errors simulated step by step (not through compound): e_0 ~ N(0, P_0),
+    e_k = F_k e_{k-1} + w_k with w_k ~ N(0, s Q_k + J_k), and the scan nu = H_x e_L + v.  With
+    every residual c_k = 0 the statistic's innovation is nu itself; mean 2nd / mean 1st is s
+    for the weight at the configured scale and at 9x it."""
+    rng = np.random.default_rng(11)
+    L, s, n = 5, 2.0, 4000
+    F = np.eye(3) + 0.1 * rng.normal(size=(L + 1, 3, 3))
+    roots = 0.05 * rng.normal(size=(L + 1, 3, 2))
+    Q = roots @ roots.transpose(0, 2, 1)                                  # rank 2, as a control's
+    J = np.broadcast_to(1e-6 * np.eye(3), (L + 1, 3, 3)).copy()
+    P0 = np.diag([0.01, 0.02, 0.001])
+    steps = MotionSteps(np.zeros((L + 1, 3)), F, Q, J, np.broadcast_to(P0, (L + 1, 3, 3)).copy())
+    H_x = rng.normal(size=(3, 2, 3))
+    noise = np.broadcast_to(np.diag([0.01, 0.001]), (3, 2, 2)).copy()
+    e = rng.multivariate_normal(np.zeros(3), P0, size=n)
+    for k in range(1, L + 1):
+        e = e @ F[k].T + rng.multivariate_normal(np.zeros(3), s * Q[k] + J[k], size=n)
+    nu = np.einsum("pij,nj->npi", H_x, e) + rng.multivariate_normal(np.zeros(2), noise[0], size=(n, 3))
+    samples = np.array([prediction_statistic(steps, H_x, row, noise, weight_scale) for row in nu])
+    assert samples[:, 1].mean() / samples[:, 0].mean() == pytest.approx(s, rel=0.05)
+
+
+def test_an_observations_variance_is_its_likelier_components():
+    """The motion statistic's K: under the mixture an inlier counts R and a clear outlier its
+    component's scale (not R over the E-step precision factor, which inflates an inlier's);
+    under the Student-t one over the precision factor."""
+    mixture = ObservationNoiseConfig(model="mixture", sigma_range=0.3, sigma_bearing=0.02,
+                                     mixture_weights=(0.9, 0.1), mixture_scales=(1.0, 25.0))
+    student = replace(mixture, model="student_t", dof=4.0)
+    for noise, expected in ((mixture, [1.0, 1.0, 25.0]), (student, None)):
+        used = _used_at([[0.0, 0.0], [0.6, 0.0], [3.0, 0.2]], noise)
+        factor = used.variance_factor
+        if expected is None:
+            assert np.allclose(factor, 1.0 / used.scan[2])
+        else:
+            assert np.array_equal(factor, expected)
+            assert 1.0 / used.scan[2][1] > 1.0                     # the precision factor's would be more
+
+
+def _used_at(innovations, noise) -> _UsedObservations:
+    """One particle at the origin whose innovations are ``innovations`` (P, 2), landmarks seen 50 times."""
+    nu = np.asarray(innovations, dtype=float)[None]
+    P = nu.shape[1]
+    data = SimpleNamespace(y=np.tile([10.0, 0.0], (P, 1)), nu=nu, H=np.tile(np.eye(2), (1, P, 1, 1)),
+                           weights=np.ones(1))
+    R = noise_covariance(noise, data.y[:, 0])
+    return _UsedObservations(data, np.full(P, 50), np.ones(P, dtype=bool), R, np.zeros(3), SensorConfig(), noise)
 
 
 def test_map_share_leaves_R_of_an_innovation_against_the_average_of_earlier_observations():

@@ -471,11 +471,16 @@ class _UsedObservations:
         """(posterior-mean innovations nubar (P, 2), pose Jacobians H_x (P, 2, 3) at the mean pose,
         the noise model's precision factors at nubar (P,)): shared by the motion and serial statistics."""
         w, pose, sensor, noise = self._mean_of
-        nu = np.einsum("n,npi->pi", w, self.nu)
+        nu, latent = self._mean_latent
         H = np.einsum("n,npij->pij", w, self.H)
-        latent, _ = _latent(noise, nu, self.R + self.map_term)
-        self._latent_at_mean = latent
         return nu, pose_jacobian_from(H, pose, sensor), component_precision_weight(noise, latent)
+
+    @cached_property
+    def _mean_latent(self) -> tuple[np.ndarray, np.ndarray]:
+        """(posterior-mean innovations nubar (P, 2), the noise model's latent variables at them (P, C))."""
+        w, _, _, noise = self._mean_of
+        nu = np.einsum("n,npi->pi", w, self.nu)
+        return nu, _latent(noise, nu, self.R + self.map_term)[0]
 
     @cached_property
     def variance_factor(self) -> np.ndarray:
@@ -485,11 +490,10 @@ class _UsedObservations:
         mixture: an inlier with some responsibility for the outlier component would count
         more variance than it has, and the statistic, which subtracts K, would learn a
         motion scale 5 % low (docs/RESULTS.md)."""
-        _, _, factor = self.scan
         noise = self._mean_of[3]
         if noise.model != "mixture":
-            return 1.0 / factor
-        return np.asarray(noise.mixture_scales, dtype=float)[np.argmax(self._latent_at_mean, axis=-1)]
+            return 1.0 / self.scan[2]
+        return np.asarray(noise.mixture_scales, dtype=float)[np.argmax(self._mean_latent[1], axis=-1)]
 
 
 class NoiseLearner:
