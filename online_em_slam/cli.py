@@ -55,7 +55,9 @@ from .runner import METHODS, choose_initial_pose, read_inputs, run_one
 
 def prepare(args) -> tuple:
     """(config, settings, file values, inputs, initial pose) from the common arguments."""
-    file_values = load_params(args.params)
+    file_values = {}
+    for path in args.params:
+        file_values.update(load_params(path))
     overrides = {}
     if args.seed is not None:
         overrides["filter.seed"] = int(args.seed)
@@ -73,7 +75,12 @@ def prepare(args) -> tuple:
 
 def _run_options(args, file_values: dict) -> dict:
     return {"plot": not args.no_plot, "match_gate": args.match_gate, "align": args.align,
-            "extra": {"params": str(args.params)}, "param_values": file_values}
+            "extra": {"params": _params_label(args)}, "param_values": file_values}
+
+
+def _params_label(args) -> str:
+    """The parameter files as one string for reports: "a.yaml", or "a.yaml + b.yaml"."""
+    return " + ".join(str(path) for path in args.params)
 
 
 def cmd_run(args) -> int:
@@ -95,10 +102,10 @@ def cmd_compare(args) -> int:
         metrics = run_one(inputs, cfg, method, initial, output / method, **_run_options(args, file_values))
         print(summary_line(metrics), flush=True)
         rows.append(comparison_row(metrics))
-    json_dump(output / "comparison.json", {"bag": str(args.bag), "params": str(args.params),
+    json_dump(output / "comparison.json", {"bag": str(args.bag), "params": _params_label(args),
                                            "seed": config.filter.seed, "num_particles": config.filter.num_particles,
                                            "initial_pose": initial.to_dict(), "methods": rows})
-    (output / "comparison.md").write_text(comparison_markdown(rows, args.bag, args.params, config.filter.seed,
+    (output / "comparison.md").write_text(comparison_markdown(rows, args.bag, _params_label(args), config.filter.seed,
                                                               config.filter.num_particles))
     print((output / "comparison.md").read_text())
     return 0
@@ -111,7 +118,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     def common(p):
         p.add_argument("bag", help="ROS 2 bag directory (mcap or sqlite3)")
-        p.add_argument("--params", required=True, help="node parameter file (ROS 2 params YAML)")
+        p.add_argument("--params", required=True, action="append",
+                       help="node parameter file (ROS 2 params YAML); given more than once the files merge "
+                            "in order, a later file's values winning (as several --params-file to a node)")
         p.add_argument("--output", required=True, help="output directory")
         p.add_argument("--seed", type=int, default=None, help="random seed (overrides filter.seed)")
         p.add_argument("--particles", type=int, default=None, help="number of particles (overrides filter.num_particles)")

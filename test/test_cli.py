@@ -64,10 +64,14 @@ def test_run_writes_outputs_and_is_deterministic(car_park_bag, tmp_path):
 
 
 def test_compare_writes_table(car_park_bag, tmp_path):
-    out = tmp_path / "cmp"
-    assert cli.main(["compare", str(car_park_bag), "--params", str(CAR_PARK_PARAMS), "--output", str(out),
-                     "--methods", "online_em", "ekf_slam", "--no-plot", "--particles", "20"]) == 0
+    """Two parameter files merge in order: the second sets the particles, the first's motion model stays."""
+    out, fewer = tmp_path / "cmp", tmp_path / "fewer.yaml"
+    fewer.write_text("/**:\n  ros__parameters:\n    filter.num_particles: 20\n")
+    assert cli.main(["compare", str(car_park_bag), "--params", str(CAR_PARK_PARAMS), "--params", str(fewer),
+                     "--output", str(out), "--methods", "online_em", "ekf_slam", "--no-plot"]) == 0
     table = json.loads((out / "comparison.json").read_text())
+    assert table["num_particles"] == 20 and table["params"] == f"{CAR_PARK_PARAMS} + {fewer}"
+    assert json.loads((out / "online_em" / "metrics.json").read_text())["motion_model"] == "acfr"
     assert [r["method"] for r in table["methods"]] == ["online_em", "ekf_slam"]
     for key in ("beacons_mapped", "spurious", "beacon_rmse_m", "trajectory_rmse_m", "mean_ms_per_step",
                 "real_time_factor"):
