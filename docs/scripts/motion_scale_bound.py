@@ -32,32 +32,29 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "test"))
 from test_noise_learning import TRUTH  # noqa: E402
 
-from online_em_slam.simulation import ScenarioConfig, simulate  # noqa: E402
+from online_em_slam.core.config import MotionConfig, SensorConfig  # noqa: E402
+from online_em_slam.core.models.motion import bicycle  # noqa: E402
+from online_em_slam.core.models.observation import landmark_jacobian, pose_jacobian  # noqa: E402
+from online_em_slam.simulation import ScenarioConfig, simulate, slam_config_for  # noqa: E402
 
-MEASURED = Path(__file__).resolve().parents[1] / "measurements" / "noise_learning_seeds_first_observation.json"
+MEASURED = Path(__file__).resolve().parents[1] / "measurements" / "noise_learning_seeds_fifth_pass.json"
 
 
 def motion_jacobians(poses: np.ndarray, controls: np.ndarray, dt: float, wheelbase: float):
-    """F_t = df/dx (T, 3, 3) and G_t = df/du (T, 3, 2) of the bicycle step at the true poses and controls."""
+    """F_t = df/dx (T, 3, 3) of the filter's bicycle model at the true poses and controls, and
+    G_t = df/du (T, 3, 2), which the model folds into Q = G V G^T (--check compares the two)."""
     v, psi = controls[:, 0], controls[:, 1]
     heading = poses[:-1, 2] + psi
     c, s = np.cos(heading), np.sin(heading)
-    T = len(controls)
-    F = np.tile(np.eye(3), (T, 1, 1))
-    F[:, 0, 2], F[:, 1, 2] = -v * dt * s, v * dt * c
+    _, F, _ = bicycle(MotionConfig(model="bicycle", wheelbase=wheelbase), poses[:-1], controls, dt)
     G = np.stack([np.stack([dt * c, -v * dt * s], -1), np.stack([dt * s, v * dt * c], -1),
                   np.stack([dt * np.sin(psi) / wheelbase, v * dt * np.cos(psi) / wheelbase], -1)], 1)
     return F, G
 
 
 def observation_jacobians(pose: np.ndarray, landmarks: np.ndarray):
-    """dh/dx (P, 2, 3) and dh/dm (P, 2, 2) of range and bearing."""
-    d = landmarks - pose[:2]
-    q = np.sum(d * d, axis=1)
-    r = np.sqrt(q)
-    Hm = np.stack([np.stack([d[:, 0] / r, d[:, 1] / r], -1), np.stack([-d[:, 1] / q, d[:, 0] / q], -1)], 1)
-    Hx = np.concatenate([-Hm, np.array([0.0, -1.0])[None, :, None].repeat(len(d), 0)], axis=2)
-    return Hx, Hm
+    """dh/dx (P, 2, 3) and dh/dm (P, 2, 2) of range and bearing: the filter's own (sensor at the base)."""
+    return pose_jacobian(pose, landmarks, SensorConfig()), landmark_jacobian(pose, landmarks)
 
 
 def transfer(F: np.ndarray) -> np.ndarray:
@@ -122,6 +119,9 @@ def dense_check(seed: int = 3, steps: int = 40) -> None:
             row_x[:, 3 * t:3 * t + 3], row_m[:, 2 * k:2 * k + 2] = Hx[p], Hm[p]
             Ax.append(row_x)
             Am.append(row_m)
+    _, _, Q = bicycle(slam_config_for(scenario).motion, scenario.true_poses[:-1], scenario.true_controls, cfg.dt)
+    V = np.diag([cfg.sigma_speed ** 2, cfg.sigma_steering ** 2])
+    print("G V G^T against the filter's Q: largest difference", float(np.abs(G @ V @ G.transpose(0, 2, 1) - Q).max()))
     Ax, Am = np.vstack(Ax), np.vstack(Am)
     Am = Am[:, np.abs(Am).sum(axis=0) > 0]
     LG = transfer(F) @ _block_diagonal(G * np.array([cfg.sigma_speed, cfg.sigma_steering]))
