@@ -13,6 +13,8 @@ over time, relative to the truth, for the first seed.
 """
 from __future__ import annotations
 
+import online_em_slam  # noqa: F401  (first: one BLAS thread per worker process)
+
 import argparse
 import sys
 from dataclasses import replace

@@ -17,6 +17,8 @@ processes; about 12 minutes for 40 seeds on two cores.
 """
 from __future__ import annotations
 
+import online_em_slam  # noqa: F401  (first: one BLAS thread per worker process)
+
 import argparse
 import json
 from dataclasses import replace

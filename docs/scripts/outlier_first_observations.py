@@ -10,6 +10,8 @@ outliers), no learning.  Prints the map RMSE and shape error, paired with the cl
 run, per variant (docs/RESULTS.md, "Noise learned online", third pass).  About
 3 minutes for 30 seeds on two cores.
 """
+import online_em_slam  # noqa: F401  (first: one BLAS thread per worker process)
+
 import copy
 import sys
 from multiprocessing import Pool
