@@ -60,9 +60,10 @@ def predicted_measurements(state: np.ndarray, P: np.ndarray, sensor) -> tuple[np
     return z_hat, S0
 
 
-def joint_update(state: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, slots: np.ndarray,
-                 sensor) -> tuple[np.ndarray, np.ndarray]:
-    """(E2) with all m associated observations stacked (2m rows)."""
+def joint_innovation(state: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, slots: np.ndarray,
+                     sensor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(E2)'s inputs for all m associated observations stacked: innovation nu (2m,),
+    H (2m, n) and the block-diagonal R (2m, 2m)."""
     m, n = len(slots), state.shape[0]
     K = (n - 3) // 2
     pose, lms = state[:3], state[3:].reshape(K, 2)[slots]
@@ -76,14 +77,26 @@ def joint_update(state: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray,
     Rb = np.zeros((2 * m, 2 * m))
     for i in range(m):
         Rb[2 * i:2 * i + 2, 2 * i:2 * i + 2] = R[i]
+    return nu, H, Rb
+
+
+def kalman_update(state: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray, Rb: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(E2) from :func:`joint_innovation`'s nu, H and R (Joseph form)."""
     PHt = P @ H.T
     S = H @ PHt + Rb
     gain = np.linalg.solve(S, PHt.T).T
     state = state + gain @ nu
     state[2] = wrap_angle(state[2])
-    A = np.eye(n) - gain @ H
+    A = np.eye(state.shape[0]) - gain @ H
     P = A @ P @ A.T + gain @ Rb @ gain.T
     return state, 0.5 * (P + P.T)
+
+
+def joint_update(state: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, slots: np.ndarray,
+                 sensor) -> tuple[np.ndarray, np.ndarray]:
+    """(E2) with all m associated observations stacked (2m rows)."""
+    return kalman_update(state, P, *joint_innovation(state, P, z, R, slots, sensor))
 
 
 def augment(state: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, sensor
