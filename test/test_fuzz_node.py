@@ -112,12 +112,17 @@ def bad_clouds(t: float, x: float) -> list:
     integer_bearing = make_cloud({"range": np.ones(2), "bearing": np.zeros(2)}, (("range", "f4"), ("bearing", "i4")))
     float_ids = make_cloud({"range": np.full(3, 5.0), "bearing": np.zeros(3), "id": np.array([np.nan, 1e20, -7.0])},
                            (("range", "f4"), ("bearing", "f4"), ("id", "f8")))
+    r, b, ids = scan(t, x)
+    absurd_std = make_cloud({"range": r, "bearing": b, "id": np.array(ids), "range_std": np.array([1e200, 1e-200]),
+                             "bearing_std": np.array([1e-200, 1e200])},             # the cloud that used to stop
+                            (("range", "f4"), ("bearing", "f4"), ("id", "i4"),      # the estimator for good
+                             ("range_std", "f8"), ("bearing_std", "f8")))
     rng = np.random.default_rng(0)
     flood = cloud(0, rng.uniform(3.0, 30.0, 8000), rng.uniform(-3.0, -2.0, 8000))   # 8000 unknown ids, behind
     hostile = [missing_range, uint8_range, integer_bearing, float_ids,
                cloud(0, [0.0, math.nan, -1.0], [0.0, 0.0, 0.0], [1, 1, 1]),       # zero, NaN, negative range
                cloud(0, [5.0, 5.0], [1e20, math.inf], [1, -1]),                   # huge and infinite bearings
-               cloud(0, [], [], []), flood]
+               cloud(0, [], [], []), absurd_std, flood]
     return ([("cloud", cloud(t, *scan(t, x))), ("cloud", cloud(t, *scan(t, x)))]  # a repeated stamp
             + [("cloud", with_stamp(m, t + 1e-3 * (i + 1))) for i, m in enumerate(hostile)])
 
@@ -125,7 +130,7 @@ def bad_clouds(t: float, x: float) -> list:
 # What the garbage above must be counted as (exactly: every refusal has a name).
 COMMON_DROPS = {"non_finite_odometry": 3, "degenerate_quaternion": 2,
                   "stamp_outlier": 8, "repeated_stamp": 1, "malformed_cloud": 3, "invalid_id": 3, "zero_range": 1,
-                  "bearing_out_of_range": 1, "invalid_observation": 3,
+                  "bearing_out_of_range": 1, "invalid_observation": 3, "invalid_std": 2,
                   "empty_cloud": 1,                 # the empty cloud (the float-id one is counted as invalid_id only)
                   "too_many_observations": 8000 - CAP}
 EXPECTED_DROPS = {
@@ -176,7 +181,9 @@ def test_fuzz_every_malformed_class_against_one_live_node(ros, motion_source):
     publish(ros, [m for m in stamps if m[0] != "cloud"], counted(node, stamp_outlier=3))
     publish(ros, [m for m in stamps if m[0] == "cloud"], counted(node, stamp_outlier=7))
     publish(ros, bad_clouds(t + 0.01, x), counted(node, stamp_outlier=8, too_many_observations=1))
+    steps = node.slam.step_count
     k = drive(ros, node, k + 1, 20)
+    assert ros.spin_until(lambda: node.slam.step_count - steps >= 20, 5.0)   # every later scan updates
 
     drops = node.all_drops()
     merged = drops.pop("merged_new_landmark", 0)        # an association outcome of the flood, not garbage

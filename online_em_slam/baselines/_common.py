@@ -90,6 +90,9 @@ class BaselineFilter:
         good = np.isfinite(observations.ranges) & np.isfinite(observations.bearings)
         good &= observations.ranges >= 0
         self._count(report, "invalid_observation", int(np.sum(~good)))
+        std_ok = observations.valid_std()
+        self._count(report, "invalid_std", int(np.sum(good & ~std_ok)))
+        good &= std_ok
         in_range = good & (observations.ranges >= sensor.min_range) & (observations.ranges <= sensor.max_range)
         self._count(report, "observation_out_of_range", int(np.sum(good & ~in_range)))
         kept = observations.subset(in_range)

@@ -1,9 +1,16 @@
 """Plain data types exchanged with the estimators (the public API's nouns)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+#: Usable per-observation standard deviations (m, rad); 0 or NaN means "not given: use
+#: the configured noise".  The ceilings are those of noise.sigma_range and noise.sigma_bearing; the
+#: floor keeps 1/std^2 finite and the map's information well conditioned (a claimed
+#: micrometre is no sensor's, 1e-200 would be infinite information).
+POINT_STD_LIMITS = {"range_std": (1e-6, 100.0), "bearing_std": (1e-6, math.pi)}
 
 
 @dataclass
@@ -12,7 +19,8 @@ class Observations:
 
     bearing 0 is the sensor's x axis, counter-clockwise positive; id -1 means
     unknown identity (associate by likelihood).  range_std / bearing_std, when
-    given and finite and positive, override the configured noise per observation.
+    given (not 0 or NaN), override the configured noise per observation; outside
+    ``POINT_STD_LIMITS`` (or infinite) the observation is unusable (:meth:`valid_std`).
     """
 
     ranges: np.ndarray
@@ -41,6 +49,16 @@ class Observations:
 
     def __len__(self) -> int:
         return int(self.ranges.shape[0])
+
+    def valid_std(self) -> np.ndarray:
+        """(n,) mask: each std is not given (0 or NaN: configured noise) or within POINT_STD_LIMITS."""
+        valid = np.ones(len(self), dtype=bool)
+        for name, (low, high) in POINT_STD_LIMITS.items():
+            std = getattr(self, name)
+            if std is not None:
+                with np.errstate(invalid="ignore"):
+                    valid &= (std == 0.0) | np.isnan(std) | ((std >= low) & (std <= high))
+        return valid
 
     def subset(self, mask: np.ndarray) -> "Observations":
         pick = (lambda a: None if a is None else a[mask])

@@ -8,6 +8,10 @@ pose to hang on (``no_motion_input``).  The trajectory is the estimator's pose
 after each observation message, once per estimator stamp: the node publishes it
 as ``~/path`` and the offline runner writes it as trajectory.csv, so the two
 are comparable point for point.
+
+An input whose application raises is dropped (``internal_error``, its error in
+``Fed.error``) and leaves no trace: :class:`~.rollback.Rollback` restores the
+estimator to its state before it, so one bad input never stops the estimator.
 """
 from __future__ import annotations
 
@@ -15,6 +19,7 @@ from collections import Counter
 from dataclasses import dataclass
 
 from .inputs import CONTROL, ODOMETRY, Input
+from .rollback import Rollback
 
 
 @dataclass
@@ -24,6 +29,7 @@ class Fed:
     moved: bool = False              # a motion input was used
     report: object = None            # StepReport of an observation update, else None
     trajectory_point: tuple | None = None   # (stamp, x, y, yaw) appended to the trajectory
+    error: Exception | None = None   # the input raised: dropped, the estimator as before it
 
 
 class Feeder:
@@ -34,21 +40,27 @@ class Feeder:
         self.reset(estimator)
 
     def reset(self, estimator) -> None:
+        """Feed ``estimator`` from now on; call after any change made to it outside :meth:`apply`."""
         self.estimator = estimator
+        self.rollback = Rollback(estimator)
         self.motion_seen = False
         self.last_point_stamp: float | None = None
 
     def apply(self, item: Input, use_observations: bool = True) -> Fed:
         """Apply ``item``; ``use_observations`` False sheds an observation update (overload)."""
-        if item.kind == self.motion_kind:
-            return self._motion(item)
-        if item.kind != ODOMETRY and item.kind != CONTROL:
-            return self._observations(item, use_observations)
+        try:
+            if item.kind == self.motion_kind:
+                return self._motion(item)
+            if item.kind != ODOMETRY and item.kind != CONTROL:
+                return self._observations(item, use_observations)
+        except Exception as error:  # noqa: BLE001 - one bad input must never stop the estimator
+            self.drops["internal_error"] += 1
+            return Fed(error=error)
         return Fed()                 # odometry while control drives the motion: pose bookkeeping only
 
     def _motion(self, item: Input) -> Fed:
-        add = self.estimator.add_odometry if item.kind == ODOMETRY else self.estimator.add_control
-        moved = bool(add(item.stamp, item.payload))
+        add = "add_odometry" if item.kind == ODOMETRY else "add_control"
+        moved = bool(self.rollback.call(add, item.stamp, item.payload))
         self.motion_seen |= moved
         return Fed(moved=moved)
 
@@ -63,12 +75,12 @@ class Feeder:
         elif not use_observations:
             self.drops["overload"] += 1
         else:
-            fed.report = self.estimator.add_observations(item.stamp, item.payload)
+            fed.report = self.rollback.call("add_observations", item.stamp, item.payload)
         fed.trajectory_point = self._trajectory_point(item.stamp)
         return fed
 
     def _trajectory_point(self, stamp: float) -> tuple | None:
-        estimate = self.estimator.pose()
+        estimate = self.rollback.call("pose")
         t = estimate.stamp if estimate.stamp is not None else stamp
         if self.last_point_stamp is not None and t <= self.last_point_stamp:
             return None

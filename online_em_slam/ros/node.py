@@ -370,6 +370,7 @@ class OnlineEmSlamNode(Node):
                                           f"expected '{s.map_frame}'")
                 return
             self._slam.set_pose(pose, std)
+            self._feeder.rollback.checkpoint()       # a failing input later must not undo the new pose
             self.get_logger().info(f"pose set to ({pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.3f}) "
                                    f"from /initialpose; the map is kept")
 
@@ -415,6 +416,10 @@ class OnlineEmSlamNode(Node):
                 fed = self._feed(item)
                 used |= fed.moved or fed.report is not None
                 observed |= fed.report is not None
+                if fed.error is not None:       # counted by the feeder; the estimator is as before the input
+                    self.get_logger().error(f"{KIND_NAME[item.kind]} at {item.stamp:.3f} failed and was dropped, "
+                                            f"the estimate kept: {fed.error!r}",
+                                            throttle_duration_sec=self._settings.warn_throttle_period)
             except Exception as error:  # noqa: BLE001 - bad input must never stop the node
                 self._drop("internal_error")
                 self.get_logger().error(f"failed to process {KIND_NAME[item.kind]} at {item.stamp:.3f}: {error!r}",
@@ -720,6 +725,7 @@ class OnlineEmSlamNode(Node):
                 self._slam.load_map(path)    # validated completely first; unchanged on failure
             except Exception as error:  # noqa: BLE001
                 return False, f"could not load map: {error}"
+            self._feeder.rollback.checkpoint()
             self._map_dirty = True
             self._path.clear()
         self._publish_map()

@@ -78,6 +78,9 @@ class OnlineEMSlam:
     :attr:`drops` by reason; no input raises or produces NaN.
     """
 
+    #: Lists that only grow, which a rollback (pipeline/rollback.py) shares instead of copying.
+    append_only_lists = ("_warmup_log",)
+
     def __init__(self, config: SlamConfig | None = None, initial_pose=(0.0, 0.0, 0.0),
                  stamp: float | None = None, m_step_factory=None) -> None:
         """``m_step_factory(config, initial_pose, rng) -> MStep`` replaces the piece
@@ -301,9 +304,11 @@ class OnlineEMSlam:
     def _valid_observations(self, obs: Observations, report: StepReport) -> Observations:
         sensor = self.config.sensor
         finite = np.isfinite(obs.ranges) & np.isfinite(obs.bearings)
-        in_range = finite & (obs.ranges >= max(sensor.min_range, 0.0)) & (obs.ranges <= sensor.max_range)
-        for reason, mask in (("invalid_observation", ~finite | (finite & (obs.ranges < 0))),
-                             ("observation_out_of_range", finite & (obs.ranges >= 0) & ~in_range)):
+        valid = finite & (obs.ranges >= 0)
+        std_ok = obs.valid_std()
+        in_range = valid & std_ok & (obs.ranges >= max(sensor.min_range, 0.0)) & (obs.ranges <= sensor.max_range)
+        for reason, mask in (("invalid_observation", ~valid), ("invalid_std", valid & ~std_ok),
+                             ("observation_out_of_range", valid & std_ok & ~in_range)):
             if mask.any():
                 report.dropped[reason] = report.dropped.get(reason, 0) + int(mask.sum())
                 self.drops[reason] += int(mask.sum())

@@ -101,7 +101,8 @@ def noise_covariance(noise: ObservationNoiseConfig, ranges: np.ndarray,
 
     Default R = [[sigma_r^2, rho], [rho, sigma_b^2]] with sigma_r growing by
     ``range_growth`` per metre of range; per-observation standard deviations,
-    when given (finite and positive), replace the configured ones and drop rho.
+    when given (not 0 or NaN; validated by types.Observations.valid_std), replace the
+    configured ones and drop rho.
     """
     ranges = np.asarray(ranges, dtype=float)
     sr = noise.sigma_range + noise.range_growth * np.maximum(ranges, 0.0)
