@@ -1,7 +1,7 @@
 """Offline runner: a bag straight into an estimator (no DDS), deterministic for a seed.
 
     online-em-slam run BAG --params FILE --output DIR [--method online_em|ekf_slam|fastslam2|marginal_slam]
-                       [--seed S] [--particles N] [--initial-pose auto|gps|params|X,Y,YAW]
+                       [--seed S] [--particles N] [--initial-pose auto|ground_truth|gps|params|X,Y,YAW]
                        [--match-gate M] [--align] [--no-plot]
     online-em-slam compare BAG --params FILE --output DIR [--methods ...] [--seed S] ...
 
@@ -21,7 +21,8 @@ or the node's cloud and quaternion checks refused, by reason).
 
 Initial pose (``--initial-pose``, default ``auto``): the ``initial_pose.*`` keys
 of the params file when it sets any; otherwise, when the bag has
-``/ground_truth/position`` (a GPS measuring the sensor point, in the map frame),
+``/ground_truth/pose`` (motion capture, MRCLAM), the ground-truth pose at the
+first input; otherwise, when the bag has ``/ground_truth/position`` (a GPS measuring the sensor point, in the map frame),
 from GPS: the sensor point at the first fix, the heading fitted to the first
 10 m of GPS track (using /odom for the shape of the track when the bag has it;
 see :func:`online_em_slam.evaluation.initial_pose_from_gps`); else (0, 0, 0).
@@ -124,8 +125,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--output", required=True, help="output directory")
         p.add_argument("--seed", type=int, default=None, help="random seed (overrides filter.seed)")
         p.add_argument("--particles", type=int, default=None, help="number of particles (overrides filter.num_particles)")
-        p.add_argument("--initial-pose", default="auto", metavar="auto|gps|params|X,Y,YAW",
-                       help="initial base pose (default auto: params file if it sets initial_pose.*, else GPS)")
+        p.add_argument("--initial-pose", default="auto", metavar="auto|ground_truth|gps|params|X,Y,YAW",
+                       help="initial base pose (default auto: params file if it sets initial_pose.*, else the "
+                            "bag's /ground_truth/pose, else GPS)")
         p.add_argument("--match-gate", type=float, default=DEFAULT_MATCH_GATE,
                        help="landmark matching gate (m) for the metrics")
         p.add_argument("--align", action="store_true",

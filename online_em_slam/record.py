@@ -63,7 +63,7 @@ class Recorder:
             self._subscribe(topic, types[topic][0])
 
     def _subscribe(self, topic: str, type_name: str) -> None:
-        from .kth.convert import _latched_qos
+        from .kth.convert import latched_qos
         from .replay import message_class
         from .topic_tool import matching_qos
 
@@ -81,7 +81,7 @@ class Recorder:
         latched = qos.durability.name == "TRANSIENT_LOCAL"
         # Latched topics are stored with a latched offered QoS so that a replay latches them too.
         conn = self.writer.add_connection(topic, type_name, typestore=self.typestore,
-                                          offered_qos_profiles=_latched_qos() if latched else ())
+                                          offered_qos_profiles=latched_qos() if latched else ())
         self.counts[topic] = 0
 
         def write(raw: bytes, conn=conn, topic=topic) -> None:

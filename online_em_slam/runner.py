@@ -32,6 +32,7 @@ from .tum import write_run_tum
 
 METHODS = ("online_em", "ekf_slam", "fastslam2", "marginal_slam")
 GT_POSITION_TOPIC = "/ground_truth/position"
+GT_POSE_TOPIC = "/ground_truth/pose"          # full base pose (motion capture), where a data set has it
 GT_LANDMARKS_TOPIC = "/ground_truth/landmarks"
 
 
@@ -59,6 +60,8 @@ class BagInputs:
     gps_xy: np.ndarray
     landmarks: np.ndarray | None          # (K, 2) surveyed landmarks
     landmark_ids: np.ndarray | None
+    gt_pose_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    gt_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))   # (n, 3) base x, y, yaw
     topics: dict = field(default_factory=dict)
     refused: Counter = field(default_factory=Counter)   # inputs the readers refused, by reason (set by feed)
     motion_source: str = "odom"           # which motion input drives the estimator (node setting)
@@ -110,7 +113,8 @@ class _BagReader:
         self.keep_poses = keep_poses
         odom, observations = _absolute(settings.odom_topic), _absolute(settings.observations_topic)
         self.handlers = {observations: self.observations, odom: self.odometry,
-                         GT_POSITION_TOPIC: self.gps, GT_LANDMARKS_TOPIC: self.surveyed_landmarks}
+                         GT_POSITION_TOPIC: self.gps, GT_POSE_TOPIC: self.ground_truth_pose,
+                         GT_LANDMARKS_TOPIC: self.surveyed_landmarks}
         self.event_topics = {observations}
         if settings.motion_source == "control":
             control = _absolute(settings.control_topic)
@@ -121,6 +125,7 @@ class _BagReader:
         self.input_topics = self.event_topics | {odom}      # odometry refusals are counted in any mode
         self.events: deque = deque()
         self.odom_t, self.odom_p, self.gps_t, self.gps_xy = [], [], [], []
+        self.gt_t, self.gt_p = [], []
         self.landmarks = self.landmark_ids = None
         self.refused: Counter = Counter()
         self.counts: Counter = Counter()
@@ -150,6 +155,13 @@ class _BagReader:
     def gps(self, stamp: float, msg) -> None:
         self.gps_t.append(stamp)
         self.gps_xy.append((float(msg.point.x), float(msg.point.y)))
+
+    def ground_truth_pose(self, stamp: float, msg) -> None:
+        yaw, problem = odometry_yaw(msg.pose.orientation)
+        if problem == "degenerate_quaternion":
+            return
+        self.gt_t.append(stamp)
+        self.gt_p.append((float(msg.pose.position.x), float(msg.pose.position.y), yaw))
 
     def surveyed_landmarks(self, stamp: float, msg) -> None:
         if self.landmarks is not None:                # latched: the first copy is the survey
@@ -181,7 +193,9 @@ def read_inputs(bag, settings) -> BagInputs:
     return BagInputs(str(bag), BagEvents(bag, settings, n_inputs if start is not None else 0),
                      np.asarray(reader.odom_t, dtype=float), np.asarray(reader.odom_p, dtype=float).reshape(-1, 3),
                      np.asarray(reader.gps_t, dtype=float), np.asarray(reader.gps_xy, dtype=float).reshape(-1, 2),
-                     reader.landmarks, reader.landmark_ids, dict(reader.counts), Counter(), settings.motion_source,
+                     reader.landmarks, reader.landmark_ids,
+                     np.asarray(reader.gt_t, dtype=float), np.asarray(reader.gt_p, dtype=float).reshape(-1, 3),
+                     dict(reader.counts), Counter(), settings.motion_source,
                      settings.time_jump_threshold, start, settings.input_delay)
 
 
@@ -196,14 +210,17 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 
 def choose_initial_pose(mode: str, inputs: BagInputs, config: SlamConfig, settings, file_values: dict
                         ) -> InitialPose:
-    """``--initial-pose`` (see :mod:`online_em_slam.cli`): auto, params, gps or X,Y,YAW."""
+    """``--initial-pose`` (see :mod:`online_em_slam.cli`): auto, params, ground_truth, gps or X,Y,YAW."""
     start = inputs.start if inputs.start is not None else 0.0
     sets_pose = any(k.startswith("initial_pose.") for k in file_values)
     if mode == "auto":
-        mode = "params" if sets_pose else ("gps" if inputs.has_gps else "params")
+        mode = "params" if sets_pose else ("ground_truth" if len(inputs.gt_pose_times) else
+                                           "gps" if inputs.has_gps else "params")
     if mode == "params":
         x, y, yaw = settings.initial_pose
         return InitialPose(x, y, yaw, start, "params file" if sets_pose else "default (0, 0, 0)")
+    if mode == "ground_truth":
+        return ground_truth_start(inputs, start)
     if mode == "gps":
         if not inputs.has_gps:
             raise ValueError(f"--initial-pose gps: the bag has no {GT_POSITION_TOPIC}")
@@ -212,6 +229,16 @@ def choose_initial_pose(mode: str, inputs: BagInputs, config: SlamConfig, settin
                                      start, odom[0], odom[1])
     x, y, yaw = parse_pose(mode)
     return InitialPose(x, y, yaw, start, "command line")
+
+
+def ground_truth_start(inputs: BagInputs, start: float) -> InitialPose:
+    """The ground-truth pose at the first input (the last one at or before it; else the first),
+    as the first GPS fix gives it for the KTH data."""
+    if not len(inputs.gt_pose_times):
+        raise ValueError(f"--initial-pose ground_truth: the bag has no {GT_POSE_TOPIC}")
+    i = max(int(np.searchsorted(inputs.gt_pose_times, start + 1e-9)) - 1, 0)
+    x, y, yaw = inputs.gt_poses[i]
+    return InitialPose(float(x), float(y), float(yaw), start, f"{GT_POSE_TOPIC} at {inputs.gt_pose_times[i]:.3f}")
 
 
 # --------------------------------------------------------------------------- running

@@ -5,6 +5,7 @@ Command line::
     online-em-slam-convert {car_park,victoria_park} OUTPUT [--data-dir D]
                            [--storage mcap|sqlite3] [--overwrite] [--no-progress]
                            [--no-map-to-gps]
+    online-em-slam-convert mrclam OUTPUT --data-dir D --robot K ...   (online_em_slam.mrclam.convert)
 
 Two layers:
 
@@ -418,7 +419,7 @@ def iter_messages(streams: Streams, typestore=None, map_to_gps=None):
         yield stamp, topic, MSGTYPES[topic], factory.build(topic, stamp, i)
 
 
-def _latched_qos():
+def latched_qos():
     from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
                                     QosReliability, QosTime)
     zero = QosTime(sec=0, nsec=0)
@@ -449,7 +450,7 @@ def write_bag(streams: Streams, output, storage: str = "mcap", progress: bool = 
     with Writer(output, version=9, storage_plugin=plugin) as writer:
         conns = {}
         for topic in sorted(counts, key=TOPIC_PRIORITY.get):
-            qos = _latched_qos() if topic in LATCHED_TOPICS else ()
+            qos = latched_qos() if topic in LATCHED_TOPICS else ()
             conns[topic] = writer.add_connection(topic, MSGTYPES[topic], typestore=ts,
                                                  offered_qos_profiles=qos)
         gps_pose = gps_frame_in_map(streams) if map_to_gps else None
@@ -467,19 +468,24 @@ def convert(name: str, output, data_dir=None, storage: str = "mcap", progress: b
                      overwrite=overwrite, map_to_gps=map_to_gps)
 
 
-def _dir_size(path: Path) -> int:
+def dir_size(path: Path) -> int:
     return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="online-em-slam-convert",
-        description="Convert a KTH SLAM dataset (ACFR ute) to a ROS 2 bag.")
-    parser.add_argument("dataset", choices=sorted(STREAM_BUILDERS))
+        description="Convert a KTH SLAM dataset (ACFR ute) or one robot of UTIAS MRCLAM to a ROS 2 bag.")
+    parser.add_argument("dataset", choices=sorted(STREAM_BUILDERS) + ["mrclam"])
     parser.add_argument("output", help="bag directory to create")
     parser.add_argument("--data-dir", default=None,
                         help="directory holding car_park/ and victoria_park/ (default: packaged data, "
-                             "or $ONLINE_EM_SLAM_DATA)")
+                             "or $ONLINE_EM_SLAM_DATA); mrclam: the MRCLAM_DatasetN directory or its .tar.xz")
+    parser.add_argument("--robot", type=int, default=None, help="mrclam only (required): robot 1-5")
+    parser.add_argument("--seconds", type=float, default=None,
+                        help="mrclam only: keep the first S seconds of every stream")
+    parser.add_argument("--unknown-ids", action="store_true",
+                        help="mrclam only: observation ids -1 (unknown) instead of the landmark numbers")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing bag directory")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
@@ -487,6 +493,13 @@ def main(argv=None) -> int:
                         help="leave out the static map -> gps transform (for a node started at the "
                              "GPS-derived initial pose, whose map frame is the gps frame)")
     args = parser.parse_args(argv)
+    if args.dataset == "mrclam":
+        from ..mrclam.convert import run_cli
+        return run_cli(args)
+    if args.robot is not None or args.seconds is not None or args.unknown_ids:
+        print("online-em-slam-convert: error: --robot, --seconds and --unknown-ids are for mrclam only",
+              file=sys.stderr)
+        return 1
     t0 = time.monotonic()
     try:
         counts = convert(args.dataset, args.output, args.data_dir, args.storage,
@@ -499,7 +512,7 @@ def main(argv=None) -> int:
     for topic, n in counts.items():
         print(f"{topic:28s} {n:8d}")
     print(f"wrote {sum(counts.values())} messages to {args.output} "
-          f"({_dir_size(Path(args.output)) / 1e6:.1f} MB, {args.storage}) in {elapsed:.1f} s")
+          f"({dir_size(Path(args.output)) / 1e6:.1f} MB, {args.storage}) in {elapsed:.1f} s")
     return 0
 
 

@@ -1,0 +1,331 @@
+"""Convert one robot of the UTIAS MRCLAM dataset to a ROS 2 bag (rosbags, Jazzy typestore); no rclpy needed.
+
+Command line (through the KTH converter's entry point)::
+
+    online-em-slam-convert mrclam OUTPUT --data-dir DIR_OR_TARXZ --robot K [--seconds S]
+                           [--unknown-ids] [--storage mcap|sqlite3] [--overwrite] [--no-progress]
+
+Two layers, as in :mod:`online_em_slam.kth.convert` (whose message helpers are reused):
+:func:`mrclam_streams` (pure numpy: the arrays the bag holds) and
+:func:`write_mrclam_bag` (rosbags messages in time order, mcap or sqlite3).
+
+Stamps: every header stamp and log time is the dataset time + ``STAMP_OFFSET``
+(1e9 s, 2001-09-09).  The dataset clock starts at 0 (odometry, ground truth), and
+ROS treats a zero stamp as "unset", so a fixed epoch is added that keeps every
+stamp positive; subtract it to get back the dataset's seconds.
+
+==========================  ==============================  ===========  ==========================================
+topic                       type                            frame        content
+==========================  ==============================  ===========  ==========================================
+/tf_static                  tf2_msgs/msg/TFMessage          base_link    base_link -> camera (identity), latched
+/ground_truth/landmarks     sensor_msgs/msg/PointCloud2     map          landmarks x, y, z = 0, id = subject, latched
+/control                    geometry_msgs/msg/TwistStamped  base_link    linear.x = v, angular.z = w, 50 Hz
+/odom                       nav_msgs/msg/Odometry           odom         integrated commands, twist (v, w), 50 Hz
+/tf                         tf2_msgs/msg/TFMessage          odom         odom -> base_link (= /odom pose)
+/ground_truth/position      geometry_msgs/msg/PointStamped  map          Vicon x, y, 10 Hz (every 5th sample)
+/ground_truth/pose          geometry_msgs/msg/PoseStamped   map          Vicon x, y, yaw, 10 Hz
+/landmark_observations      sensor_msgs/msg/PointCloud2     camera       one cloud per measurement time
+==========================  ==============================  ===========  ==========================================
+
+/odom: the velocity commands integrated from (0, 0, 0) at the first odometry sample,
+command k held over [t_k, t_k+1] along the exact arc of constant (v, w) (not Euler).
+Covariances are 0 (not estimated).  The observation clouds have the fields of
+:data:`online_em_slam.cloud.OBSERVATION_FIELDS`: x, y, z (sensor frame, z = 0), range,
+bearing (0 = forward, counter-clockwise positive), id = landmark subject number (6-20;
+-1 for all with ``unknown_ids``), range_std = bearing_std = 0 ("use the configured
+noise").  All barcodes read at one time are one image, one cloud; times without a kept
+measurement have no cloud.  The ground truth is in the Vicon frame, called ``map``:
+a node started at the first ground-truth pose has its map there.  Messages sharing a
+stamp are ordered static first, motion before observations (``TOPIC_PRIORITY``).
+"""
+from __future__ import annotations
+
+import shutil
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..cloud import OBSERVATION_FIELDS
+from ..kth.beacons import observation_columns
+from ..kth.convert import (GROUND_TRUTH_LANDMARK_FIELDS, DeadReckoning, MessageFactory, Observations,
+                           dir_size, latched_qos, jazzy_typestore, to_ns)
+from ..progress import Progress
+from .dataset import DROP_REASONS, MrclamRun, load_mrclam
+
+#: Added to every dataset time (seconds) to make the stamps: no stamp is zero or negative.
+STAMP_OFFSET = 1_000_000_000.0
+_STAMP_OFFSET_NS = 1_000_000_000 * 1_000_000_000
+#: Every n-th ground-truth sample (50 Hz -> 10 Hz).
+GROUND_TRUTH_EVERY = 5
+
+TOPIC_TF_STATIC, TOPIC_TF, TOPIC_ODOM, TOPIC_CONTROL = "/tf_static", "/tf", "/odom", "/control"
+TOPIC_OBSERVATIONS = "/landmark_observations"
+TOPIC_GT_POSITION, TOPIC_GT_POSE, TOPIC_GT_LANDMARKS = "/ground_truth/position", "/ground_truth/pose", \
+    "/ground_truth/landmarks"
+
+MSGTYPES = {
+    TOPIC_TF_STATIC: "tf2_msgs/msg/TFMessage",
+    TOPIC_GT_LANDMARKS: "sensor_msgs/msg/PointCloud2",
+    TOPIC_CONTROL: "geometry_msgs/msg/TwistStamped",
+    TOPIC_ODOM: "nav_msgs/msg/Odometry",
+    TOPIC_TF: "tf2_msgs/msg/TFMessage",
+    TOPIC_GT_POSITION: "geometry_msgs/msg/PointStamped",
+    TOPIC_GT_POSE: "geometry_msgs/msg/PoseStamped",
+    TOPIC_OBSERVATIONS: "sensor_msgs/msg/PointCloud2",
+}
+#: Order of messages sharing one stamp (static data first, motion before sensing).
+TOPIC_PRIORITY = {t: i for i, t in enumerate(MSGTYPES)}
+LATCHED_TOPICS = (TOPIC_TF_STATIC, TOPIC_GT_LANDMARKS)
+FRAME_MAP, FRAME_ODOM, FRAME_BASE, FRAME_CAMERA = "map", "odom", "base_link", "camera"
+
+
+# --------------------------------------------------------------------------- pure layer
+
+@dataclass(frozen=True)
+class LabelledObservations(Observations):
+    """Observations grouped per image (CSR, as the KTH ones) with a landmark id per detection."""
+
+    ids: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class MrclamStreams:
+    """Everything the bag holds, as arrays on the dataset clock (no STAMP_OFFSET).
+
+    ``odom`` carries the commands too: speed = v, yaw_rate = w (/control and the /odom twist).
+    """
+
+    name: str
+    odom: DeadReckoning
+    observations: LabelledObservations
+    ground_truth_times: np.ndarray
+    ground_truth_poses: np.ndarray
+    landmark_subjects: np.ndarray
+    landmark_xy: np.ndarray
+
+    @property
+    def start_time(self) -> float:
+        firsts = [self.odom.times[:1], self.observations.times[:1], self.ground_truth_times[:1]]
+        return float(np.min(np.concatenate(firsts)))
+
+    def per_topic_times(self) -> dict[str, np.ndarray]:
+        """Dataset time of every message, per topic (latched ones once, at the start)."""
+        t0 = np.array([self.start_time])
+        return {TOPIC_TF_STATIC: t0, TOPIC_GT_LANDMARKS: t0, TOPIC_CONTROL: self.odom.times,
+                TOPIC_ODOM: self.odom.times, TOPIC_TF: self.odom.times, TOPIC_GT_POSITION: self.ground_truth_times,
+                TOPIC_GT_POSE: self.ground_truth_times, TOPIC_OBSERVATIONS: self.observations.times}
+
+    def message_counts(self) -> dict[str, int]:
+        return {topic: len(times) for topic, times in self.per_topic_times().items()}
+
+
+def integrate_velocities(times, v, w, initial_pose=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Poses (n, 3) at ``times`` from commands (v, w), command k held over [t_k, t_k+1].
+
+    Exact arcs of constant (v, w): heading += w dt; the position moves by the chord
+    v dt sinc(w dt / 2) along the mid-heading (a straight line when w = 0).
+    """
+    t, v, w = (np.asarray(a, dtype=np.float64) for a in (times, v, w))
+    dt = np.diff(t)
+    turn = w[:-1] * dt
+    heading = initial_pose[2] + np.concatenate([[0.0], np.cumsum(turn)])
+    chord = v[:-1] * dt * np.sinc(turn / (2.0 * np.pi))          # np.sinc(x) = sin(pi x) / (pi x)
+    mid = heading[:-1] + 0.5 * turn
+    poses = np.empty((len(t), 3))
+    poses[:, 0] = initial_pose[0] + np.concatenate([[0.0], np.cumsum(chord * np.cos(mid))])
+    poses[:, 1] = initial_pose[1] + np.concatenate([[0.0], np.cumsum(chord * np.sin(mid))])
+    poses[:, 2] = np.arctan2(np.sin(heading), np.cos(heading))
+    return poses
+
+
+def group_observations(times, ranges, bearings, ids) -> LabelledObservations:
+    """One group per distinct time (``times`` sorted): all barcodes read at one time are one image."""
+    times = np.asarray(times, dtype=np.float64)
+    distinct, starts = np.unique(times, return_index=True)
+    offsets = np.append(starts, len(times)).astype(np.int64)
+    return LabelledObservations(distinct, offsets, np.asarray(ranges, dtype=np.float64),
+                                np.asarray(bearings, dtype=np.float64), ids=np.asarray(ids, dtype=np.int32))
+
+
+def mrclam_streams(run: MrclamRun, unknown_ids: bool = False,
+                   ground_truth_every: int = GROUND_TRUTH_EVERY) -> MrclamStreams:
+    """The bag's arrays for a loaded run; ``unknown_ids``: every observation id -1 (data association left
+    to the estimator); ground truth decimated to every ``ground_truth_every``-th sample."""
+    poses = integrate_velocities(run.odometry_times, run.odometry_v, run.odometry_w)
+    odom = DeadReckoning(run.odometry_times, poses, run.odometry_v, run.odometry_w)
+    ids = np.full(run.n_measurements, -1) if unknown_ids else run.measurement_subjects
+    obs = group_observations(run.measurement_times, run.measurement_range, run.measurement_bearing, ids)
+    step = slice(None, None, int(ground_truth_every))
+    return MrclamStreams(f"mrclam_robot{run.robot}", odom, obs, run.ground_truth_times[step],
+                         run.ground_truth_poses[step], run.landmark_subjects, run.landmark_xy)
+
+
+def to_stamp_ns(t) -> np.ndarray:
+    """Dataset seconds -> bag stamps in integer nanoseconds (STAMP_OFFSET added exactly)."""
+    return to_ns(t) + _STAMP_OFFSET_NS
+
+
+def message_schedule(streams: MrclamStreams) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """Time order of all messages: (stamps_ns with the offset, topics, index within topic),
+    sorted by stamp, then TOPIC_PRIORITY, then index."""
+    per_topic = streams.per_topic_times()
+    topics = list(per_topic)
+    stamps = np.concatenate([to_stamp_ns(per_topic[t]) for t in topics])
+    prio = np.concatenate([np.full(len(per_topic[t]), TOPIC_PRIORITY[t]) for t in topics])
+    index = np.concatenate([np.arange(len(per_topic[t])) for t in topics])
+    order = np.lexsort((index, prio, stamps))
+    names = sorted(TOPIC_PRIORITY, key=TOPIC_PRIORITY.get)
+    return stamps[order], [names[p] for p in prio[order]], index[order]
+
+
+# --------------------------------------------------------------------------- rosbags messages
+
+class MrclamMessageFactory(MessageFactory):
+    """rosbags messages of the MRCLAM streams; /odom and /tf come from the KTH factory unchanged."""
+
+    def __init__(self, streams: MrclamStreams, typestore=None):
+        super().__init__(streams, typestore, map_to_gps=None)
+
+    def tf_static(self, stamp_ns: int):
+        return self.T["tf2_msgs/msg/TFMessage"](
+            transforms=[self._transform(stamp_ns, FRAME_BASE, FRAME_CAMERA, 0.0, 0.0, 0.0)])
+
+    def gt_landmarks(self, stamp_ns: int):
+        s = self.s
+        cols = {"x": s.landmark_xy[:, 0], "y": s.landmark_xy[:, 1], "z": np.zeros(len(s.landmark_xy)),
+                "id": s.landmark_subjects.astype(np.int32)}
+        return self._cloud(stamp_ns, FRAME_MAP, cols, GROUND_TRUTH_LANDMARK_FIELDS)
+
+    def control(self, stamp_ns: int, i: int):
+        T, o = self.T, self.s.odom
+        return T["geometry_msgs/msg/TwistStamped"](
+            header=self.header(stamp_ns, FRAME_BASE),
+            twist=T["geometry_msgs/msg/Twist"](linear=self.Vector3(x=float(o.speed[i]), y=0.0, z=0.0),
+                                               angular=self.Vector3(x=0.0, y=0.0, z=float(o.yaw_rate[i]))))
+
+    def gt_position(self, stamp_ns: int, i: int):
+        x, y, _ = self.s.ground_truth_poses[i]
+        return self.T["geometry_msgs/msg/PointStamped"](
+            header=self.header(stamp_ns, FRAME_MAP), point=self.Point(x=float(x), y=float(y), z=0.0))
+
+    def gt_pose(self, stamp_ns: int, i: int):
+        x, y, yaw = (float(v) for v in self.s.ground_truth_poses[i])
+        return self.T["geometry_msgs/msg/PoseStamped"](
+            header=self.header(stamp_ns, FRAME_MAP),
+            pose=self.T["geometry_msgs/msg/Pose"](position=self.Point(x=x, y=y, z=0.0), orientation=self._quat(yaw)))
+
+    def observations(self, stamp_ns: int, i: int):
+        obs = self.s.observations
+        _, rng, brg = obs.scan(i)
+        ids = obs.ids[int(obs.offsets[i]):int(obs.offsets[i + 1])]
+        return self._cloud(stamp_ns, FRAME_CAMERA, observation_columns(rng, brg, ids), OBSERVATION_FIELDS)
+
+    def build(self, topic: str, stamp_ns: int, i: int):
+        if topic == TOPIC_TF_STATIC:
+            return self.tf_static(stamp_ns)
+        if topic == TOPIC_GT_LANDMARKS:
+            return self.gt_landmarks(stamp_ns)
+        return {TOPIC_CONTROL: self.control, TOPIC_ODOM: self.odom, TOPIC_TF: self.tf,
+                TOPIC_GT_POSITION: self.gt_position, TOPIC_GT_POSE: self.gt_pose,
+                TOPIC_OBSERVATIONS: self.observations}[topic](stamp_ns, i)
+
+
+def iter_messages(streams: MrclamStreams, typestore=None):
+    """Yield (stamp_ns, topic, msgtype, rosbags message) in time order."""
+    factory = MrclamMessageFactory(streams, typestore)
+    stamps, topics, index = message_schedule(streams)
+    for stamp, topic, i in zip(stamps.tolist(), topics, index.tolist()):
+        yield stamp, topic, MSGTYPES[topic], factory.build(topic, stamp, i)
+
+
+def _clear_output(output: Path, overwrite: bool) -> None:
+    """Refuse an existing ``output`` unless ``overwrite`` and it is a bag (or empty); then remove it."""
+    if not output.exists():
+        return
+    if not overwrite:
+        raise FileExistsError(f"{output} exists (use overwrite)")
+    if not (output / "metadata.yaml").exists() and any(output.iterdir()):
+        raise FileExistsError(f"{output} exists and does not look like a bag; not removing it")
+    shutil.rmtree(output)
+
+
+def write_streams(streams: MrclamStreams, output, storage: str = "mcap", overwrite: bool = False,
+                  progress: bool = True, stream=None) -> dict[str, int]:
+    """Write the streams to a ROS 2 bag directory ``output``; returns messages per topic."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    output = Path(output)
+    if storage not in ("mcap", "sqlite3"):
+        raise ValueError(f"storage must be mcap or sqlite3, got {storage!r}")
+    _clear_output(output, overwrite)
+    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    ts = jazzy_typestore()
+    counts = {t: 0 for t in streams.message_counts()}
+    bar = Progress(sum(streams.message_counts().values()), f"{streams.name} -> {output.name}",
+                   stream=stream, enabled=progress)
+    with Writer(output, version=9, storage_plugin=plugin) as writer:
+        conns = {topic: writer.add_connection(topic, MSGTYPES[topic], typestore=ts,
+                                              offered_qos_profiles=latched_qos() if topic in LATCHED_TOPICS else ())
+                 for topic in sorted(counts, key=TOPIC_PRIORITY.get)}
+        for stamp, topic, msgtype, msg in iter_messages(streams, ts):
+            writer.write(conns[topic], stamp, ts.serialize_cdr(msg, msgtype))
+            counts[topic] += 1
+            bar.update()
+    bar.close()
+    return counts
+
+
+def write_mrclam_bag(run: MrclamRun, output, storage: str = "mcap", overwrite: bool = False,
+                     unknown_ids: bool = False, progress: bool = True) -> dict[str, int]:
+    """Write a loaded run (:func:`~online_em_slam.mrclam.dataset.load_mrclam`) to the bag directory
+    ``output``; returns messages per topic."""
+    return write_streams(mrclam_streams(run, unknown_ids), output, storage, overwrite, progress)
+
+
+# --------------------------------------------------------------------------- command line
+
+def report_lines(run: MrclamRun) -> list[str]:
+    """What the loader left out or changed, for the command line."""
+    lines = ["dropped measurements: " + ", ".join(f"{r} {run.drops[r]}" for r in DROP_REASONS)
+             + f" (kept {run.n_measurements})"]
+    if run.seconds is not None:
+        lines.append(f"first {run.seconds:g} s kept; rows cut: "
+                     + ", ".join(f"{k} {v}" for k, v in run.truncated.items()))
+    elif any(run.truncated.values()):
+        lines.append("rows outside the odometry span: " + ", ".join(f"{k} {v}" for k, v in run.truncated.items()))
+    if any(run.retimed.values()):
+        lines.append("times rebuilt on the 50 Hz grid (file rounds them to 5 significant digits): "
+                     + ", ".join(f"{k} {v}" for k, v in run.retimed.items()))
+    return lines
+
+
+def run_cli(args) -> int:
+    """``online-em-slam-convert mrclam ...`` (arguments parsed by kth.convert.main); 0 or 1 (one error line)."""
+    def fail(message: str) -> int:
+        print(f"online-em-slam-convert: error: {message}", file=sys.stderr)
+        return 1
+
+    if args.robot is None:
+        return fail("mrclam needs --robot K (1-5)")
+    if args.data_dir is None:
+        return fail("mrclam needs --data-dir (the MRCLAM_DatasetN directory or its .tar.xz)")
+    if args.no_map_to_gps:
+        return fail("--no-map-to-gps is for the KTH datasets (an MRCLAM bag has no map -> gps transform)")
+    t0 = time.monotonic()
+    try:
+        run = load_mrclam(args.data_dir, args.robot, args.seconds)
+        counts = write_mrclam_bag(run, args.output, args.storage, args.overwrite, args.unknown_ids,
+                                  progress=not args.no_progress)
+    except (FileNotFoundError, FileExistsError, ValueError) as exc:
+        return fail(str(exc))
+    elapsed = time.monotonic() - t0
+    for topic, n in counts.items():
+        print(f"{topic:28s} {n:8d}")
+    for line in report_lines(run):
+        print(line)
+    print(f"wrote {sum(counts.values())} messages to {args.output} "
+          f"({dir_size(Path(args.output)) / 1e6:.1f} MB, {args.storage}) in {elapsed:.1f} s")
+    return 0
