@@ -18,9 +18,10 @@ import pytest
 from online_em_slam.core import OnlineEMSlam
 from online_em_slam.core.config import (NoiseLearningConfig, ObservationNoiseConfig, SensorConfig, SlamConfig,
                                         replace_section)
-from online_em_slam.core.em.noise_learning import (MotionSteps, NoiseLearner, RangeBins, StochasticAverage,
-                                                _UsedObservations, batch_step_size, map_share, map_uncertainty,
-                                                prediction_statistic, range_noise_fit, ratio_error)
+from online_em_slam.core.em.averages import StochasticAverage, batch_step_size
+from online_em_slam.core.em.motion_noise import MotionSteps, prediction_statistic, ratio_error
+from online_em_slam.core.em.noise_learning import (NoiseLearner, RangeBins, _UsedObservations, map_share,
+                                                map_uncertainty, range_noise_fit)
 from online_em_slam.core.em.serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation
 from online_em_slam.core.models.observation import information_noise, noise_covariance
 from online_em_slam.core.types import Observations

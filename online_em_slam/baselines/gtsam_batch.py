@@ -13,6 +13,10 @@ expressed in the Pose2 tangent space at z_k (first order: the translation part
 rotated by -dphi_k).  R' is R reordered to GTSAM's (bearing, range).
 This is the batch ML estimate the online methods try to reach; gtsam is an
 optional benchmark dependency, imported inside :func:`batch_estimate`.
+
+The same problem on recorded inputs (a bag's event stream, the estimator's own
+motion bookkeeping) is :func:`batch_from_inputs` / :func:`batch_on_bag`
+(module ``gtsam_inputs``, re-exported here).
 """
 from __future__ import annotations
 
@@ -172,3 +176,14 @@ def _factor_graph(gtsam, scenario, config: SlamConfig, n_landmarks: int, initial
             graph.add(gtsam.BearingRangeFactor2D(X(k), L(int(j)), gtsam.Rot2(float(b)), float(r),
                                                  gtsam.noiseModel.Gaussian.Covariance(cov)))
     return graph, values
+
+
+_INPUTS_NAMES = ("InputsBatchResult", "batch_from_inputs", "batch_on_bag")
+
+
+def __getattr__(name: str):
+    """The recorded-inputs batch of :mod:`.gtsam_inputs`, imported on first use (it imports this module)."""
+    if name in _INPUTS_NAMES:
+        from . import gtsam_inputs
+        return getattr(gtsam_inputs, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

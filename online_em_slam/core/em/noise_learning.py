@@ -42,7 +42,7 @@ uncertainty, so most of its information is missing).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from functools import cached_property
 
 import numpy as np
@@ -55,6 +55,8 @@ from .step import FilterStepData
 from ..models.motion import step_jitter
 from ..models.observation import (component_precision_weight, information_noise, inv_det_2x2, mahalanobis_2d,
                                   noise_covariance, noise_loglik, student_t_weight)
+from .averages import StochasticAverage, batch_step_sizes
+from .motion_noise import MotionWindow, prediction_statistic, ratio_error
 from .observed_information import motion_residual
 from .serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation, whitened
 from ..filter.particles import weighted_pose_mean
@@ -69,44 +71,10 @@ OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture"
 # Range bins of the sigma_r(r) = a + b r fit, over [0, min(max_range, RANGE_BIN_REACH)]
 # (farther observations share the last bin): the bins only weigh, their means are exact.
 RANGE_BINS, RANGE_BIN_REACH = 16, 100.0
-# A filter step informs the motion scale when at least this many of the transition's
-# three dimensions are motion noise rather than jitter.
-MIN_MOTION_DIMENSIONS = 0.5
 # Largest change of the motion scale in use per filter step, in log: a factor 9 takes 110 steps.
 MAX_SCALE_RATE = 0.02
 # Its bounds on the ratio, by numpy's exp as they always were (math.exp may round differently).
 _SCALE_RATIO = (float(np.exp(-MAX_SCALE_RATE)), float(np.exp(MAX_SCALE_RATE)))
-
-
-def batch_step_size(count: float, batch: int, alpha: float) -> float:
-    """gamma of ``batch`` consecutive updates n = count+1 .. count+batch with one mean:
-    1 - prod_j (1 - n_j^-alpha), so a scan of P observations weighs as P single updates."""
-    n = count + np.arange(1, batch + 1, dtype=float)
-    return float(1.0 - np.prod(1.0 - n ** -alpha))
-
-
-def batch_step_sizes(counts: np.ndarray, batches: np.ndarray, alpha: float) -> np.ndarray:
-    """:func:`batch_step_size` of several averages at once (K,): the rows' factors padded with 1
-    (a product's exact no-op) and multiplied left to right, as the one-row product is."""
-    n = counts[:, None] + np.arange(1, batches.max() + 1, dtype=float)                # (K, max batch)
-    factors = np.where(n <= (counts + batches)[:, None], 1.0 - n ** -alpha, 1.0)
-    return 1.0 - np.multiply.reduce(factors, axis=1)                                 # np.prod's reduction
-
-
-@dataclass
-class StochasticAverage:
-    """S_n = S_{n-1} + gamma_n (s - S_{n-1}), gamma_n = n^-alpha (online EM's averaging)."""
-
-    alpha: float
-    value: np.ndarray | None = None
-    count: int = 0
-    squared_weights: float = 0.0        # sum of the samples' squared weights: Var(S) = this x Var(s)
-
-    def blend(self, sample: np.ndarray, batch: int = 1) -> None:
-        gamma = 1.0 if self.value is None else batch_step_size(self.count, batch, self.alpha)
-        self.value = sample.copy() if self.value is None else self.value + gamma * (sample - self.value)
-        self.squared_weights = (1.0 - gamma) ** 2 * self.squared_weights + gamma ** 2 / batch
-        self.count += batch
 
 
 class RangeBins:
@@ -268,21 +236,6 @@ def student_t_dof(statistic: float, low: float, high: float) -> float:
     return float(math.exp(brentq(score, lo, hi, xtol=1e-10)))
 
 
-def ratio_error(moments: np.ndarray, squared_weights: float) -> float:
-    """Relative standard error of s = E[b] / E[a] from the averages (E[a], E[b], E[a^2], E[ab], E[b^2])
-    of independent samples (a, b) with weights whose squares sum to ``squared_weights``.
-
-    Delta method: s - s* ~ sum_i w_i (b_i - s a_i) / E[a], so Var(s) = q E[(b - s a)^2] / E[a]^2.
-    A non-positive s has no relative error: inf.
-    """
-    a, b, aa, ab, bb = moments
-    s = b / a
-    if not s > 0.0:
-        return math.inf
-    residual = max(bb - 2.0 * s * ab + s * s * aa, 0.0)
-    return float(math.sqrt(squared_weights * residual) / (a * s))
-
-
 def map_share(n_obs: np.ndarray) -> np.ndarray:
     """(n_k - 1) / n_k (P,): the part of the innovation's second moment R (1 + 1/(n_k - 1)) that is R.
 
@@ -304,120 +257,6 @@ def map_uncertainty(R: np.ndarray, n_obs: np.ndarray) -> np.ndarray:
     (10 times too large, say), its map term would swamp the residuals.
     """
     return R / np.maximum(np.asarray(n_obs, dtype=float) - 1.0, 1.0)[:, None, None]
-
-
-@dataclass
-class MotionSteps:
-    """Filter steps of the motion-scale window, oldest first (L of them): residuals
-    c_t = f(xbar_{t-1}) - xbar_t (L, 3), Jacobians F_t, motion noise covariances Q_t at
-    scale 1, jitters J_t and posterior spreads P_t (L, 3, 3 each)."""
-
-    c: np.ndarray
-    F: np.ndarray
-    Q: np.ndarray
-    J: np.ndarray
-    P: np.ndarray
-
-    def __getitem__(self, index: slice) -> MotionSteps:
-        return MotionSteps(self.c[index], self.F[index], self.Q[index], self.J[index], self.P[index])
-
-
-class MotionWindow:
-    """The last ``size`` filter steps' :class:`MotionSteps`, kept in place in stacked arrays
-    (a push shifts them by one): no per-step objects, no copies to read the window."""
-
-    def __init__(self, size: int) -> None:
-        self.size, self.count = size, 0
-        self.steps = MotionSteps(np.zeros((size, 3)), *(np.zeros((size, 3, 3)) for _ in range(4)))
-
-    @property
-    def full(self) -> bool:
-        return self.count >= self.size
-
-    def append(self, c: np.ndarray, F: np.ndarray, Q: np.ndarray, J: np.ndarray, P: np.ndarray) -> None:
-        for stack, value in zip((self.steps.c, self.steps.F, self.steps.Q, self.steps.J, self.steps.P),
-                                (c, F, Q, J, P)):
-            stack[:-1] = stack[1:]
-            stack[-1] = value
-        self.count += 1
-
-
-def compound(steps: MotionSteps) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """C = sum_k Phi(t, k) c_k, Q_L = sum_k Phi Q_k Phi^T, J_L (the jitter's), Phi(t, start) over ``steps``.
-
-    C is what the window's motion residuals add up to at its end: the open-loop
-    prediction of the pose at t from the posterior at the window's start, minus
-    the posterior mean at t; Q_L is its motion covariance at scale 1.
-
-    Phi(t, k) is built from the end backwards, one 3x3 product per step (the same
-    products in the same order as one step at a time); the terms are then one stacked
-    matmul each (per matrix the same BLAS call) and summed newest first from zero.
-    """
-    L = steps.c.shape[0]
-    Phi = np.empty((L + 1, 3, 3))                 # Phi[k + 1] = Phi(t, k) of step k; Phi[0] the whole window's
-    Phi[L] = np.eye(3)
-    for k in range(L - 1, -1, -1):
-        np.matmul(Phi[k + 1], steps.F[k], out=Phi[k])
-    Phis, PhisT = Phi[1:], Phi[1:].transpose(0, 2, 1)
-    terms = np.concatenate([(Phis @ steps.c[..., None]).reshape(L, 3), (Phis @ steps.Q @ PhisT).reshape(L, 9),
-                            (Phis @ steps.J @ PhisT).reshape(L, 9)], axis=1)
-    total = _running_total(terms[::-1])
-    return total[:3], total[3:12].reshape(3, 3), total[12:].reshape(3, 3), Phi[0]
-
-
-def _running_total(terms: np.ndarray) -> np.ndarray:
-    """((0 + terms[0]) + terms[1]) + ... over the first axis of ``terms`` (L, ...).
-
-    A cumulative sum adds strictly in order; starting from terms[0] instead of 0 + terms[0]
-    can differ only in the sign of a zero while every partial sum is zero, which the final
-    + 0.0 settles as the start from +0 did (x + 0.0 is x otherwise).
-    """
-    if terms.shape[0] == 0:
-        return np.zeros(terms.shape[1:])
-    return np.cumsum(terms, axis=0)[-1] + 0.0
-
-
-def prediction_statistic(steps: MotionSteps, pose_jacobian: np.ndarray, innovation: np.ndarray,
-                         noise_cov: np.ndarray, weight_scale: float = 1.0) -> np.ndarray | None:
-    """(tr(W G), nu^T W nu - tr(W K)) of the scan at the window's end: s = mean 2nd / mean 1st, (M).
-
-    nu = nubar - H_x C (2P) is the scan's innovation against the pose predicted
-    open loop over the window from the posterior at its start (steps[0] only
-    gives that posterior's spread P_0), ``innovation`` nubar the posterior mean
-    innovation at t and ``pose_jacobian`` H_x = dh/dX.  Its covariance is
-    S(s) = K + s G with G = H_x Q_L H_x^T, K = H_x (Phi P_0 Phi^T + J_L) H_x^T
-    + ``noise_cov`` (R and the map term), so E[nu^T W nu - tr(W K)] = s tr(W G)
-    for any W fixed before the scan.  W = S(s')^-1 G S(s')^-1, the score's weight
-    at ``weight_scale`` s' (the scale in use: near the truth once learned, where the
-    weight is the efficient one; started at 1/9 of the truth, the configured scale's
-    weight left the estimate more than 15 % off in 28 of 80 runs, this one in 20).  A
-    prediction error, unlike the posterior's residuals, is not pulled towards
-    the motion noise the filter assumed: EM's statistic would approach the
-    true scale by a fraction per pass only (one step's motion noise is small
-    next to the pose's uncertainty, so most of its information is missing).
-    """
-    C, Q, J, Phi = compound(steps[1:])
-    Hx = pose_jacobian.reshape(-1, 3)                                    # (2P, 3)
-    nu = innovation.reshape(-1) - Hx @ C
-    G = Hx @ Q @ Hx.T
-    K = Hx @ (Phi @ steps.P[0] @ Phi.T + J) @ Hx.T + _block_diagonal(noise_cov)
-    try:
-        if np.trace(np.linalg.solve(Q + J, Q)) < MIN_MOTION_DIMENSIONS:
-            return None                   # standing still: the jitter is all the window moved
-        S_inv = np.linalg.inv(K + weight_scale * G)
-    except np.linalg.LinAlgError:
-        return None
-    W = S_inv @ G @ S_inv
-    sample = np.array([np.trace(W @ G), nu @ W @ nu - np.trace(W @ K)])
-    return sample if np.all(np.isfinite(sample)) and sample[0] > 0 else None
-
-
-def _block_diagonal(blocks: np.ndarray) -> np.ndarray:
-    """(P, 2, 2) -> (2P, 2P)."""
-    p = blocks.shape[0]
-    out = np.zeros((p, 2, p, 2))
-    out[np.arange(p), :, np.arange(p), :] = blocks
-    return out.reshape(2 * p, 2 * p)
 
 
 def pose_jacobian_from(H: np.ndarray, pose: np.ndarray, sensor: SensorConfig) -> np.ndarray:
