@@ -58,6 +58,7 @@ setup(
             "online-em-slam-record = online_em_slam.record:main",
             "online-em-slam-topic = online_em_slam.topic_tool:main",
             "online-em-slam-demo = online_em_slam.demo:main",
+            "online-em-slam-mrclam-benchmark = online_em_slam.mrclam.benchmark:main",
         ],
     },
 )

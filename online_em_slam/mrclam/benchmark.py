@@ -1,0 +1,369 @@
+"""Every method on the UTIAS MRCLAM runs: one command, resumable, one table.
+
+    online-em-slam-mrclam-benchmark --data-dir /work/shared/datasets/mrclam --output results/mrclam
+        [--datasets 1 9] [--robots 1 2 3 4 5] [--seconds 600]   (0 = full length; several allowed)
+        [--seeds 0 1 2 3 4] [--ids known unknown] [--methods online_em online_em_complete ekf_slam
+        fastslam2 marginal_slam batch] [--params config/mrclam.yaml ...] [--jobs 2] [--particles N]
+
+For every run (dataset, robot, seconds, ids) the bag is converted once into
+``OUTPUT/bags/<run>/`` (an existing bag is reused), then every method runs on it
+(``OUTPUT/runs/<run>/<method>[_learned]/seed<k>/``, the offline runner's outputs):
+
+* ``online_em``: the params as they are; ``online_em_complete``: em.m_step complete;
+* ``fastslam2``, ``marginal_slam``: every seed, twice: with the params' noise and with the
+  noise online EM learned on the same run and seed (its noise.yaml as a second params
+  file; ``_learned``); ``ekf_slam``: deterministic, one run (the first seed), learned noise of
+  that seed;
+* ``batch``: GTSAM batch maximum likelihood, known ids only (skipped for unknown ids),
+  with the params' noise and with the first seed's learned noise.
+
+The learned variants wait for their online EM run (and are left out when online_em is
+not among the methods and its noise.yaml does not exist yet).  Landmark metrics match
+within 1 m (Hungarian assignment): ``matched`` = landmarks within 1 m; shape = RMSE after
+the best rigid 2-D fit; frame = the rest; trajectory RMSE against /ground_truth/position.
+Work items run in ``--jobs`` spawned worker processes with one BLAS thread each; an
+existing metrics.json is reused (an interrupted sweep resumes).  Plots only for the
+first seed of online_em and ekf_slam.  Writes ``OUTPUT/results.json`` (every work item)
+and ``OUTPUT/results.md`` (tables: :mod:`online_em_slam.mrclam.table`), and prints the markdown.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+MATCH_GATE = 1.0
+METHODS = ("online_em", "online_em_complete", "ekf_slam", "fastslam2", "marginal_slam", "batch")
+BASELINES = ("ekf_slam", "fastslam2", "marginal_slam")
+TWO_NOISE = BASELINES + ("batch",)                  # run with the params' noise and with the learned one
+SINGLE_RUN = ("ekf_slam", "batch")                   # deterministic: the first seed only
+RUNNER_METHOD = {"online_em_complete": "online_em"}
+OVERRIDES = {"online_em_complete": (("em.m_step", "complete"),)}
+PLOTTED = ("online_em", "ekf_slam")
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+#: The package's config/mrclam.yaml (source checkout); else looked up from the working directory.
+_CHECKOUT_PARAMS = Path(__file__).resolve().parents[2] / "config" / "mrclam.yaml"
+DEFAULT_PARAMS = str(_CHECKOUT_PARAMS) if _CHECKOUT_PARAMS.exists() else "config/mrclam.yaml"
+
+
+@dataclass(frozen=True)
+class Item:
+    """One work item (picklable): a bag conversion, an offline run or a batch solve."""
+
+    key: str
+    kind: str                                # convert | run | batch
+    run: str                                 # <dataset>_r<robot>_<seconds>_<ids>
+    dataset: int
+    robot: int
+    seconds: int
+    ids: str
+    bag: str
+    method: str = ""
+    noise: str = "params"                    # params | learned
+    seed: int | None = None
+    out: str = ""
+    params: tuple[str, ...] = ()
+    overrides: tuple = ()
+    plot: bool = False
+    source: str = ""                         # dataset directory or archive (convert)
+    particles: int | None = None             # --particles (filter.num_particles)
+    after: tuple[str, ...] = ()              # keys of the items this one needs
+
+
+# --------------------------------------------------------------------------- planning
+
+def run_name(dataset: int, robot: int, seconds: int, ids: str) -> str:
+    return f"{dataset}_r{robot}_{f'{seconds}s' if seconds else 'full'}_{ids}"
+
+
+def dataset_source(data_dir: Path, dataset: int) -> Path:
+    """data_dir/MRCLAM_DatasetN (directory) or data_dir/MRCLAM_DatasetN.tar.xz."""
+    for candidate in (data_dir / f"MRCLAM_Dataset{dataset}", data_dir / f"MRCLAM_Dataset{dataset}.tar.xz"):
+        if candidate.exists():
+            return candidate
+    raise FileNotFoundError(f"{data_dir}: no MRCLAM_Dataset{dataset} directory or .tar.xz")
+
+
+def plan(args) -> list[Item]:
+    """Every work item, each after the items it needs (dependency order)."""
+    items: list[Item] = []
+    output = Path(args.output)
+    for dataset in args.datasets:
+        source = dataset_source(Path(args.data_dir), dataset)
+        for robot in args.robots:
+            for seconds in args.seconds:
+                for ids in args.ids:
+                    name = run_name(dataset, robot, seconds, ids)
+                    convert = Item(f"{name}/bag", "convert", name, dataset, robot, seconds, ids,
+                                   str(output / "bags" / name), source=str(source), particles=args.particles)
+                    items.append(convert)
+                    items.extend(run_items(args, convert, output / "runs" / name))
+    return items
+
+
+def run_items(args, convert: Item, root: Path) -> list[Item]:
+    """The method runs on one converted bag: the params' noise first, then the learned variants."""
+    first, plain, learned = args.seeds[0], [], []
+    for method in args.methods:
+        if method == "batch" and convert.ids != "known":
+            continue
+        for seed in ([first] if method in SINGLE_RUN else args.seeds):
+            item = replace(convert, key=f"{convert.run}/{method}/seed{seed}", kind="batch" if method == "batch"
+                           else "run", method=method, seed=seed, out=str(root / method / f"seed{seed}"),
+                           params=tuple(args.params), overrides=OVERRIDES.get(method, ()),
+                           plot=method in PLOTTED and seed == first, after=(convert.key,))
+            plain.append(item)
+            if method in TWO_NOISE:
+                learned.append(learned_variant(args, item, root))
+    return plain + [item for item in learned if item is not None]
+
+
+def learned_variant(args, item: Item, root: Path) -> Item | None:
+    """``item`` with the noise online EM learned on the same run and seed (None: not available)."""
+    source = f"{item.run}/online_em/seed{item.seed}"
+    noise = root / "online_em" / f"seed{item.seed}" / "noise.yaml"
+    if "online_em" not in args.methods and not noise.exists():
+        return None
+    after = item.after + ((source,) if "online_em" in args.methods else ())
+    return replace(item, key=f"{item.run}/{item.method}_learned/seed{item.seed}", noise="learned",
+                   out=str(root / f"{item.method}_learned" / f"seed{item.seed}"),
+                   params=item.params + (str(noise),), plot=False, after=after)
+
+
+# --------------------------------------------------------------------------- work items
+
+def execute(item: Item) -> dict:
+    """Do one work item (in a worker); its record, reusing an earlier result when there is one."""
+    started = time.perf_counter()
+    try:
+        if item.kind == "convert":
+            status = convert_bag(item)
+            return record(item, status, {"benchmark": {"item_wall_s": time.perf_counter() - started}})
+        path = Path(item.out) / "metrics.json"
+        if path.exists():
+            return record(item, "reused", json.loads(path.read_text()))
+        metrics = solve_batch(item) if item.kind == "batch" else run_method(item)
+        metrics["benchmark"] = {"item_wall_s": time.perf_counter() - started, "params": list(item.params),
+                                "overrides": dict(item.overrides), "noise": item.noise}
+        from ..report import json_dump
+        json_dump(path, metrics)
+        return record(item, "ok", metrics)
+    except ImportError as error:
+        return record(item, "unavailable", {}, f"{type(error).__name__}: {error}")
+    except Exception as error:          # noqa: BLE001 (one failed item must not stop the sweep)
+        return record(item, "failed", {}, f"{type(error).__name__}: {error}")
+
+
+def convert_bag(item: Item) -> str:
+    """The run's bag (written beside, then renamed: an interrupted conversion is never reused)."""
+    from .convert import write_mrclam_bag
+    from .dataset import load_mrclam
+    target = Path(item.bag)
+    if (target / "metadata.yaml").exists():
+        return "reused"
+    partial = target.with_name(target.name + ".partial")
+    if partial.exists():                          # left by an interrupted conversion
+        shutil.rmtree(partial)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    run = load_mrclam(item.source, item.robot, item.seconds or None)
+    write_mrclam_bag(run, partial, overwrite=True, unknown_ids=item.ids == "unknown", progress=False)
+    partial.rename(target)
+    return "ok"
+
+
+def prepared(item: Item) -> tuple:
+    """(config, settings, file values, inputs, initial pose) as ``online-em-slam run`` prepares them."""
+    from ..paramfile import config_from_params, load_params
+    from ..runner import choose_initial_pose, read_inputs
+    values: dict = {}
+    for path in item.params:
+        values.update(load_params(path))
+    overrides = dict(item.overrides, **{"filter.seed": int(item.seed or 0)})
+    if item.particles:
+        overrides["filter.num_particles"] = item.particles
+    config, settings = config_from_params(values, overrides)
+    inputs = read_inputs(item.bag, settings)
+    if not inputs.events:
+        raise ValueError(f"{item.bag}: no inputs on the configured topics")
+    initial = choose_initial_pose("auto", inputs, config, settings, values)
+    return config, settings, values, inputs, initial
+
+
+def run_method(item: Item) -> dict:
+    from ..runner import run_one
+    config, _, values, inputs, initial = prepared(item)
+    extra = {"params": " + ".join(item.params), "benchmark_method": item.method}
+    return run_one(inputs, config, RUNNER_METHOD.get(item.method, item.method), initial, Path(item.out),
+                   plot=item.plot, match_gate=MATCH_GATE, extra=extra, param_values=values)
+
+
+def solve_batch(item: Item) -> dict:
+    """GTSAM batch ML (known ids) on the bag, scored as the runner scores a run."""
+    import numpy as np
+
+    from ..baselines.gtsam_inputs import batch_on_bag
+    from ..evaluation import landmark_metrics, sensor_points, trajectory_metrics
+    from ..report import write_trajectory
+    config, _, _, inputs, initial = prepared(item)
+    started = time.perf_counter()
+    result = batch_on_bag(item.bag, list(item.params), initial.pose)
+    wall = time.perf_counter() - started
+    out = Path(item.out)
+    out.mkdir(parents=True, exist_ok=True)
+    trajectory = np.column_stack([result.stamps, result.poses])
+    write_trajectory(out / "trajectory.csv", trajectory)
+    np.savetxt(out / "landmarks.csv", np.column_stack([result.landmark_ids, result.landmarks]),
+               fmt=["%d", "%.6f", "%.6f"], delimiter=",", header="id,x,y", comments="")
+    metrics = {"method": "batch", "bag": item.bag, "params": " + ".join(item.params), "seed": None,
+               "initial_pose": initial.to_dict(), "n_landmarks": int(len(result.landmark_ids)),
+               "timing": {"wall_time_s": wall, "solve_time_s": result.solve_time},
+               "batch": {"iterations": result.iterations, "initial_error": result.initial_error,
+                         "final_error": result.final_error, "n_observations": result.n_observations,
+                         "skipped": {k: int(v) for k, v in result.skipped.items()}}}
+    if inputs.landmarks is not None:
+        metrics["landmarks"] = landmark_metrics(result.landmarks, inputs.landmarks, MATCH_GATE,
+                                                result.landmark_ids).to_dict()
+    if inputs.has_gps:
+        points = sensor_points(result.poses, (config.sensor.offset_x, config.sensor.offset_y))
+        metrics["trajectory"] = trajectory_metrics(result.stamps, points, inputs.gps_times, inputs.gps_xy).to_dict()
+    return metrics
+
+
+def record(item: Item, status: str, metrics: dict, error: str = "") -> dict:
+    """What results.json keeps of a work item."""
+    lm, tr, tm = metrics.get("landmarks") or {}, metrics.get("trajectory") or {}, metrics.get("timing") or {}
+    row = {"key": item.key, "kind": item.kind, "run": item.run, "dataset": item.dataset, "robot": item.robot,
+           "seconds": item.seconds, "ids": item.ids, "method": item.method, "noise": item.noise,
+           "seed": item.seed, "status": status, "error": error or None, "dir": item.out or item.bag,
+           "landmark_rmse": lm.get("rmse"), "landmark_shape": lm.get("shape_error"),
+           "landmark_frame": lm.get("frame_error"), "matched": lm.get("n_matched"), "n_true": lm.get("n_true"),
+           "spurious": lm.get("n_spurious"), "trajectory_rmse": tr.get("rmse"),
+           "mean_step_ms": tm.get("mean_step_ms"), "estimator_wall_s": tm.get("wall_time_s"),
+           "item_wall_s": (metrics.get("benchmark") or {}).get("item_wall_s")}
+    learned = metrics.get("noise_learned")
+    if learned:
+        row["noise_learned"] = {k: learned.get(k) for k in ("model", "sigma_range", "sigma_bearing",
+                                                            "serial_correlation", "motion_scale")}
+    return row
+
+
+# --------------------------------------------------------------------------- scheduling
+
+def run_all(items: list[Item], jobs: int, log=print) -> list[dict]:
+    """Every item, each once the items it needs are done (skipped when one of them did not succeed)."""
+    keys = {item.key for item in items}
+    missing = {k for item in items for k in item.after} - keys
+    if missing:
+        raise ValueError(f"work items need unplanned items: {sorted(missing)}")
+    records: dict[str, dict] = {}
+    waiting = list(items)
+
+    def finished(rec: dict) -> None:
+        records[rec["key"]] = rec
+        wall = rec.get("item_wall_s") if rec["status"] == "ok" else None
+        log(f"[{len(records)}/{len(items)}] {rec['key']}: {rec['status']}"
+            + (f" ({wall:.1f} s)" if wall is not None else "") + (f": {rec['error']}" if rec["error"] else ""),
+            flush=True)
+
+    def take_ready() -> list[Item]:
+        """The waiting items whose needs are all done; those with a need that failed are skipped."""
+        ready = []
+        for item in list(waiting):
+            needs = [records.get(k) for k in item.after]
+            if any(need is None for need in needs):
+                continue
+            waiting.remove(item)
+            bad = next((need for need in needs if need["status"] not in ("ok", "reused")), None)
+            if bad is None:
+                ready.append(item)
+            else:
+                finished(record(item, "skipped", {}, f"needs {bad['key']} ({bad['status']})"))
+        return ready
+
+    if jobs <= 1:
+        while waiting:
+            for item in take_ready():
+                finished(execute(item))
+        return [records[item.key] for item in items]
+    for name in THREAD_VARIABLES:          # inherited by the spawned workers (numpy not yet imported there)
+        os.environ[name] = "1"
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from multiprocessing import get_context
+    with ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
+        futures: dict = {}
+        while waiting or futures:
+            futures.update({pool.submit(execute, item): item for item in take_ready()})
+            if futures:
+                done, _ = wait(futures, return_when=FIRST_COMPLETED)
+                for future in done:
+                    futures.pop(future)
+                    finished(future.result())
+    return [records[item.key] for item in items]
+
+
+# --------------------------------------------------------------------------- command line
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="online-em-slam-mrclam-benchmark", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    parser.add_argument("--data-dir", required=True,
+                        help="directory holding MRCLAM_DatasetN directories or MRCLAM_DatasetN.tar.xz archives")
+    parser.add_argument("--output", required=True, help="output directory (bags/, runs/, results.json, results.md)")
+    parser.add_argument("--datasets", type=int, nargs="+", default=[1, 9])
+    parser.add_argument("--robots", type=int, nargs="+", default=[1, 2, 3, 4, 5], choices=range(1, 6))
+    parser.add_argument("--seconds", type=int, nargs="+", default=[600], help="first S seconds (0 = full length)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    parser.add_argument("--ids", nargs="+", default=["known", "unknown"], choices=("known", "unknown"))
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    parser.add_argument("--params", nargs="+", default=[DEFAULT_PARAMS],
+                        help="parameter files, merged in order (a later file's values win; default %(default)s)")
+    parser.add_argument("--jobs", type=int, default=2, help="worker processes (one BLAS thread each)")
+    parser.add_argument("--particles", type=int, default=None, help="override filter.num_particles")
+    return parser
+
+
+def unique(values: list) -> list:
+    return list(dict.fromkeys(values))
+
+
+def main(argv: list[str] | None = None) -> int:
+    from .table import results_markdown
+    args = build_parser().parse_args(argv)
+    for name in ("datasets", "robots", "seconds", "seeds", "ids", "methods"):
+        setattr(args, name, unique(getattr(args, name)))
+    if min(args.seconds) < 0 or args.jobs < 1:
+        print("online-em-slam-mrclam-benchmark: error: --seconds must be >= 0 and --jobs >= 1", file=sys.stderr)
+        return 2
+    args.params = [str(Path(p).resolve()) for p in args.params]
+    args.output = str(Path(args.output).resolve())
+    started = time.perf_counter()
+    try:
+        for path in args.params:
+            if not Path(path).is_file():
+                raise FileNotFoundError(f"--params: {path} does not exist")
+        items = plan(args)
+    except FileNotFoundError as error:
+        print(f"online-em-slam-mrclam-benchmark: error: {error}", file=sys.stderr)
+        return 1
+    Path(args.output).mkdir(parents=True, exist_ok=True)
+    records = run_all(items, args.jobs)
+    meta = {key: getattr(args, key) for key in ("data_dir", "datasets", "robots", "seconds", "seeds", "ids",
+                                                  "methods", "params", "jobs", "particles")}
+    meta.update(match_gate_m=MATCH_GATE, wall_time_s=time.perf_counter() - started, cpu_count=os.cpu_count(),
+                date=time.strftime("%Y-%m-%d %H:%M"))
+    text = results_markdown(records, meta)
+    from ..report import json_dump
+    json_dump(Path(args.output) / "results.json", {"meta": meta, "runs": records})
+    (Path(args.output) / "results.md").write_text(text)
+    print(text)
+    failed = [r for r in records if r["status"] in ("failed", "skipped")]
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

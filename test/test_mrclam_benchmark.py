@@ -1,0 +1,148 @@
+"""online-em-slam-mrclam-benchmark on a tiny synthetic MRCLAM directory (the layout of test_mrclam.py's
+_write_dataset): 15 landmarks, a robot driving a circle, barcodes read from the ground truth."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from online_em_slam.mrclam import benchmark
+from online_em_slam.mrclam.table import best_cell, cells, results_markdown
+
+N_LANDMARKS = 15
+SUBJECTS = np.arange(6, 6 + N_LANDMARKS)
+BARCODES = {subject: 100 + subject for subject in SUBJECTS} | {1: 5, 2: 14}
+
+
+def _write_dataset(directory: Path, robot: int = 1, seconds: float = 30.0) -> Path:
+    """Odometry (v, w) and its exact ground truth at 50 Hz; a barcode reading every 0.2 s
+    of each landmark within 3.5 m in front, with small noise (seeded)."""
+    rng = np.random.default_rng(0)
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "Barcodes.dat").write_text("# subject barcode\n" + "".join(
+        f"{s} {b}\n" for s, b in sorted(BARCODES.items())))
+    angles = 2 * np.pi * np.arange(N_LANDMARKS) / N_LANDMARKS
+    radius = 2.0 + 1.2 * (np.arange(N_LANDMARKS) % 2)
+    xy = np.column_stack([radius * np.cos(angles), 2.0 + radius * np.sin(angles)])
+    (directory / "Landmark_Groundtruth.dat").write_text("# subject x y sx sy\n" + "".join(
+        f"{s} {x:.4f} {y:.4f} 0.0001 0.0001\n" for s, (x, y) in zip(SUBJECTS, xy)))
+    t = 0.02 * np.arange(int(seconds / 0.02) + 1)
+    v, w = np.full(t.size, 0.4), np.full(t.size, 0.2)
+    yaw = w[0] * t
+    pose = np.column_stack([v[0] / w[0] * np.sin(yaw), v[0] / w[0] * (1 - np.cos(yaw)), yaw])
+    np.savetxt(directory / f"Robot{robot}_Odometry.dat", np.column_stack([t, v, w]), fmt="%.6f")
+    np.savetxt(directory / f"Robot{robot}_Groundtruth.dat", np.column_stack([t, pose]), fmt="%.6f")
+    rows = []
+    for k in range(0, t.size, 10):
+        d = xy - pose[k, :2]
+        ranges = np.hypot(d[:, 0], d[:, 1])
+        bearings = np.angle(np.exp(1j * (np.arctan2(d[:, 1], d[:, 0]) - pose[k, 2])))
+        for j in np.flatnonzero((ranges < 3.5) & (np.abs(bearings) < 1.2)):
+            rows.append((t[k], BARCODES[SUBJECTS[j]], ranges[j] + 0.02 * rng.standard_normal(),
+                         bearings[j] + 0.01 * rng.standard_normal()))
+    np.savetxt(directory / f"Robot{robot}_Measurement.dat", np.array(rows), fmt=["%.3f", "%d", "%.4f", "%.4f"])
+    return directory
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    root = tmp_path_factory.mktemp("mrclam_benchmark")
+    _write_dataset(root / "data" / "MRCLAM_Dataset1")
+    argv = ["--data-dir", str(root / "data"), "--output", str(root / "out"), "--datasets", "1", "--robots", "1",
+            "--seconds", "20", "--seeds", "0", "--ids", "known", "--methods", "online_em", "ekf_slam",
+            "--jobs", "1", "--particles", "20"]
+    code = benchmark.main(argv)
+    return root / "out", argv, code
+
+
+def test_results_files_and_rows(sweep, capsys):
+    out, _, code = sweep
+    assert code == 0
+    results = json.loads((out / "results.json").read_text())
+    keys = [r["key"] for r in results["runs"]]
+    run = "1_r1_20s_known"
+    assert keys == [f"{run}/bag", f"{run}/online_em/seed0", f"{run}/ekf_slam/seed0", f"{run}/ekf_slam_learned/seed0"]
+    assert all(r["status"] == "ok" for r in results["runs"]), results["runs"]
+    assert (out / "bags" / run / "metadata.yaml").exists()
+    for method in ("online_em", "ekf_slam", "ekf_slam_learned"):
+        assert (out / "runs" / run / method / "seed0" / "metrics.json").exists()
+    assert (out / "runs" / run / "online_em" / "seed0" / "map.png").exists()           # plotted: first seed
+    assert not (out / "runs" / run / "ekf_slam_learned" / "seed0" / "map.png").exists()
+    learned = json.loads((out / "runs" / run / "ekf_slam_learned" / "seed0" / "metrics.json").read_text())
+    assert learned["benchmark"]["params"][-1].endswith("online_em/seed0/noise.yaml")
+    em = next(r for r in results["runs"] if r["method"] == "online_em")
+    assert em["n_true"] == N_LANDMARKS and em["matched"] >= 10 and em["landmark_shape"] < 0.5
+    assert em["noise_learned"]["sigma_range"] > 0 and em["item_wall_s"] > 0
+    text = (out / "results.md").read_text()
+    assert "## 20 s, known ids" in text and "| 1 | 1 |" in text
+    assert "| dataset | robot | online_em | ekf_slam |" in text
+    assert "online EM shape RMSE <= the better of EKF-SLAM and FastSLAM 2.0: " in text
+    assert "(no batch results)" in text and "- dataset 1 robot 1: online_em " in text
+
+
+def test_resume_reuses_metrics(sweep, capsys):
+    out, argv, _ = sweep
+    run = out / "runs" / "1_r1_20s_known"
+    stamps = {p: p.stat().st_mtime_ns for p in run.rglob("metrics.json")}
+    assert len(stamps) == 3
+    assert benchmark.main(argv) == 0
+    assert {p: p.stat().st_mtime_ns for p in run.rglob("metrics.json")} == stamps
+    results = json.loads((out / "results.json").read_text())
+    assert [r["status"] for r in results["runs"]] == ["reused"] * 4
+    assert "reused" in capsys.readouterr().out
+
+
+def test_plan_covers_every_method_and_noise(tmp_path):
+    (tmp_path / "MRCLAM_Dataset1.tar.xz").write_bytes(b"")
+    args = benchmark.build_parser().parse_args(["--data-dir", str(tmp_path), "--output", str(tmp_path / "o"),
+                                                "--datasets", "1", "--robots", "2", "--seeds", "0", "1"])
+    items = benchmark.plan(args)
+    keys = {item.key for item in items}
+    known, unknown = "1_r2_600s_known", "1_r2_600s_unknown"
+    for run in (known, unknown):
+        for seed in (0, 1):
+            for method in ("online_em", "online_em_complete", "fastslam2", "fastslam2_learned",
+                           "marginal_slam", "marginal_slam_learned"):
+                assert f"{run}/{method}/seed{seed}" in keys
+        assert f"{run}/ekf_slam_learned/seed0" in keys and f"{run}/ekf_slam/seed1" not in keys
+    assert f"{known}/batch/seed0" in keys and f"{known}/batch_learned/seed0" in keys
+    assert not any(k.startswith(f"{unknown}/batch") for k in keys)
+    by_key = {item.key: item for item in items}
+    learned = by_key[f"{known}/fastslam2_learned/seed1"]
+    assert learned.after == (f"{known}/bag", f"{known}/online_em/seed1")
+    assert learned.params[-1].endswith(f"runs/{known}/online_em/seed1/noise.yaml")
+    complete = by_key[f"{known}/online_em_complete/seed0"]
+    assert dict(complete.overrides) == {"em.m_step": "complete"}
+    assert [i.key for i in items].index(f"{known}/online_em/seed1") < [i.key for i in items].index(learned.key)
+
+
+def test_failed_need_skips_dependents(tmp_path):
+    source = benchmark.Item("r/bag", "convert", "r", 1, 1, 20, "known", str(tmp_path / "bag"),
+                            source=str(tmp_path / "missing"))
+    run = benchmark.Item("r/ekf_slam/seed0", "run", "r", 1, 1, 20, "known", source.bag, method="ekf_slam",
+                         seed=0, out=str(tmp_path / "run"), after=(source.key,))
+    records = benchmark.run_all([source, run], jobs=1, log=lambda *a, **k: None)
+    assert [r["status"] for r in records] == ["failed", "skipped"]
+    assert "needs r/bag (failed)" in records[1]["error"]
+
+
+def test_better_noise_setting_and_summary():
+    def rec(method, noise, seed, shape, matched, spurious):
+        return {"kind": "run", "status": "ok", "seconds": 600, "ids": "known", "dataset": 1, "robot": 1,
+                "method": method, "noise": noise, "seed": seed, "landmark_shape": shape, "landmark_rmse": shape,
+                "trajectory_rmse": 0.1, "matched": matched, "n_true": 15, "spurious": spurious, "item_wall_s": 1.0,
+                "key": f"{method}/{noise}/{seed}", "error": None}
+    records = [rec("online_em", "params", 0, 0.10, 15, 0), rec("online_em", "params", 1, 0.12, 15, 0),
+               rec("fastslam2", "params", 0, 0.05, 14, 0), rec("fastslam2", "learned", 0, 0.20, 15, 1),
+               rec("batch", "params", 0, 0.08, 15, 0), rec("batch", "learned", 0, 0.04, 15, 0)]
+    table = cells(records)
+    assert best_cell(table, (600, "known", 1, 1), "fastslam2")["noise"] == "learned"     # 15/15 beats 14/15
+    assert best_cell(table, (600, "known", 1, 1), "batch")["noise"] == "learned"
+    meta = {"methods": ["online_em", "fastslam2", "batch"], "datasets": [1], "robots": [1], "seeds": [0, 1],
+            "params": ["p.yaml"], "match_gate_m": 1.0, "wall_time_s": 1.0, "jobs": 1, "date": "today"}
+    text = results_markdown(records, meta)
+    assert "0.110 ± 0.010 · 15/15 · 0" in text and "0.200 (L) · 15/15 · 1" in text
+    assert "FastSLAM 2.0: 1 of 1 runs" in text and "ratio (mean over runs): 2.75 over 1 runs" in text
+    assert "online_em 15/15 ✓, 0 spurious ✓; fastslam2 15/15 ✓, 1 spurious ✗" in text
