@@ -654,3 +654,17 @@ def test_a_first_observation_that_is_an_outlier_does_not_hold_the_landmark(monke
     held = map_errors(run(spoiled, config), spoiled)
     assert robust[1] <= 1.10 * clean[1] and robust[0] <= clean[0]
     assert held[0] > 3.0 * clean[0]
+
+
+def test_a_motion_scale_the_data_put_below_the_floor_comes_into_use_at_the_floor():
+    """E[b] / E[a] below the floor by more than two standard errors: no relative error exists
+    (the ratio is not positive), but the constrained estimate, the floor, is known."""
+    learner = NoiseLearner(replace_section(SlamConfig(), noise_learning=NoiseLearningConfig(
+        enabled=True, motion_window=1)))
+    low, high = learner.settings.motion_scale_limits
+    a, b = 1.0, -0.2                                       # samples (a, b) with E[b] / E[a] = -0.2
+    learner.motion.value = np.array([a, b, a * a, a * b, b * b + 0.01])
+    learner.motion.squared_weights = 1.0 / 400
+    assert learner.motion_scale_error() == math.inf and learner._scale_beyond_limit(low, high)
+    learner.motion.squared_weights = 1.0                   # one sample: not known
+    assert not learner._scale_beyond_limit(low, high)

@@ -148,6 +148,10 @@ class MotionConfig:
     wheelbase: float = param(4.0, 0.0, 100.0, lo_open=True,
                              doc="Wheelbase B of the bicycle model / L of the acfr model (m).")
     encoder_offset: float = param(0.76, -10.0, 10.0, doc="acfr model: lateral offset H of the speed encoder (m).")
+    translation_gain: float = param(1.0, 0.1, 10.0, doc="Calibration of the motion input: the speed (odometry: "
+                                    "the translation increment) is multiplied by this.")
+    rotation_gain: float = param(1.0, 0.1, 10.0, doc="Calibration of the motion input: the steering angle or "
+                                 "yaw rate (odometry: the rotation increment) is multiplied by this.")
     sigma_speed: float = param(0.5, *_STD, doc="Speed noise std (m/s) over noise_reference_period.")
     sigma_steering: float = param(math.pi / 60, *_STD, doc="Steering angle / yaw rate noise std (rad, rad/s) "
                                   "over noise_reference_period.")
@@ -356,7 +360,7 @@ class AssociationConfig:
 
 
 LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "dof", "range_growth", "serial_correlation",
-                   "motion_scale")
+                   "motion_scale", "motion_gains")
 
 
 @dataclass
@@ -410,7 +414,8 @@ class NoiseLearningConfig:
                                     "motion_scale"),
                                    choices=LEARNABLE_NOISE, doc="Quantities learned: any of range, bearing, "
                                    "correlation, mixture (with noise.model mixture), dof (with noise.model "
-                                   "student_t), range_growth, serial_correlation, motion_scale. "
+                                   "student_t), range_growth, serial_correlation, motion_scale, motion_gains (the "
+                                   "calibration of the motion input: motion.translation_gain, rotation_gain). "
                                    "To learn nothing set enabled false.")
     step_size_exponent: float = param(0.7, 0.5, 1.0, lo_open=True, doc="Step size gamma_n = n^-exponent of the "
                                       "noise statistics.")
@@ -452,8 +457,15 @@ class NoiseLearningConfig:
                                                      "ceiling of the learned motion noise scale (factor on the "
                                                      "motion covariance), floor <= ceiling.")
 
+    motion_gain_limits: tuple[float, float] = param((0.25, 4.0), 0.1, 10.0, doc="Floor and ceiling of the "
+                                                    "learned motion gains (motion.translation_gain, "
+                                                    "rotation_gain), floor <= ceiling.")
+    motion_gain_tolerance: float = param(0.03, 0.0, 1.0, lo_open=True, doc="The learned motion gains are used "
+                                         "once their standard errors are below this (and warmup_steps have "
+                                         "passed).")
     _LIMITS = ("sigma_range_limits", "sigma_bearing_limits", "range_growth_limits", "mixture_weight_limits",
-               "mixture_scale_limits", "dof_limits", "motion_scale_limits")
+               "mixture_scale_limits", "dof_limits", "motion_scale_limits",
+               "motion_gain_limits")
 
     def validate(self, prefix: str = "noise_learning") -> None:
         if isinstance(self.learn, str):

@@ -5,7 +5,8 @@ at t - L gives the scan's prediction error nu = nubar_t - H_x C, whose
 covariance is K + s G (G = H_x Q_L H_x^T the window's motion noise at scale 1,
 K the rest), so s = sum_t (nu^T W nu - tr(W K)) / sum_t tr(W G).  The window
 of filter steps, its compounding and the statistic live here; the learner
-(noise_learning.py) averages it, and motion_shape.py splits it in two scales.
+(noise_learning.py) averages it; motion_gains.py uses the same window for the
+calibration of the motion input.
 """
 from __future__ import annotations
 
@@ -32,6 +33,15 @@ def ratio_error(moments: np.ndarray, squared_weights: float) -> float:
         return math.inf
     residual = max(bb - 2.0 * s * ab + s * s * aa, 0.0)
     return float(math.sqrt(squared_weights * residual) / (a * s))
+
+
+def absolute_error(moments: np.ndarray, squared_weights: float, s: float) -> float:
+    """Standard error of s = E[b] / E[a] around the value ``s`` (delta method, as :func:`ratio_error`):
+    sqrt(q E[(b - s a)^2]) / E[a]; inf unless E[a] > 0."""
+    a, _, aa, ab, bb = moments
+    if not a > 0.0:
+        return math.inf
+    return float(math.sqrt(squared_weights * max(bb - 2.0 * s * ab + s * s * aa, 0.0)) / a)
 
 
 @dataclass

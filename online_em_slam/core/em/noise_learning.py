@@ -52,20 +52,17 @@ from scipy.special import digamma
 from ..models.angles import wrap_angle
 from ..config import ObservationNoiseConfig, SensorConfig, SlamConfig
 from .step import FilterStepData
-from ..models.motion import step_jitter
+from ..models.motion import ROTATION_STDS, TRANSLATION_STDS, scaled_noise, step_jitter
 from ..models.observation import (component_precision_weight, information_noise, inv_det_2x2, mahalanobis_2d,
                                   noise_covariance, noise_loglik, student_t_weight)
 from .averages import StochasticAverage, batch_step_sizes
-from .motion_noise import MotionWindow, prediction_statistic, ratio_error
+from .motion_noise import MotionWindow, absolute_error, prediction_statistic, ratio_error
+from .motion_gains import MotionGains, gain_statistic, move_towards
 from .observed_information import motion_residual
 from .serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation, whitened
 from ..filter.particles import weighted_pose_mean
 
-# Motion noise standard deviations: all of them scale by sqrt(s) when the
-# transition covariance scales by s (every model's covariance is a sum of their squares).
-MOTION_STDS = ("sigma_speed", "sigma_steering", "sigma_heading", "odometry_translation_std",
-               "odometry_rotation_std", "odometry_translation_per_meter", "odometry_rotation_per_radian",
-               "odometry_rotation_per_meter")
+MOTION_QUANTITIES = frozenset({"motion_scale", "motion_gains"})
 OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture", "dof", "range_growth",
                                     "serial_correlation"})
 # Range bins of the sigma_r(r) = a + b r fit, over [0, min(max_range, RANGE_BIN_REACH)]
@@ -362,10 +359,18 @@ class NoiseLearner:
         self.scale_estimate = 1.0
         self.scale_in_use = 1.0
         self._motion_warm = False
+        # The calibration of the motion input (motion_gains.py): the gains in use.
+        self.gains = (MotionGains(self.settings.motion_step_size_exponent, self.settings.motion_window)
+                      if "motion_gains" in learn else None)
+        self.sensitivities = np.zeros((self.settings.motion_window + 1, 3, 2))
+        self.gains_in_use = np.array([config.motion.translation_gain, config.motion.rotation_gain])
+        self.gains_estimate, self.gain_errors = self.gains_in_use.copy(), np.full(2, math.inf)
+        self._gain_warm = np.zeros(2, dtype=bool)        # each gain in use once known to the tolerance
+        self._motion_config = (None, None)                # (gains, the motion config with them)
         self._start = config.noise                       # in use until warm: configured, or restored
         self._in_use = config.noise
 
-    def start_from(self, noise: ObservationNoiseConfig, motion_scale: float) -> None:
+    def start_from(self, noise: ObservationNoiseConfig, motion_scale: float, motion_gains=None) -> None:
         """Start from values learned earlier (a loaded map file) instead of the configured
         ones: in use at once, then replaced by this run's estimates once they are warm."""
         if not self.learn:
@@ -376,6 +381,9 @@ class NoiseLearner:
         if "motion_scale" in self.learn:
             low, high = self.settings.motion_scale_limits
             self.scale_estimate = self.scale_in_use = _clip(motion_scale, low, high)
+        if self.gains is not None and motion_gains is not None:
+            self.gains_in_use = np.clip(np.asarray(motion_gains, dtype=float), *self.settings.motion_gain_limits)
+            self.gains_estimate = self.gains_in_use.copy()
 
     def saved_values(self) -> dict[str, np.ndarray] | None:
         """The values in use for a map file (None when nothing is learned)."""
@@ -397,7 +405,8 @@ class NoiseLearner:
         """Every learned quantity has replaced its configured value (nothing learned: False)."""
         observation = not (self.learn & OBSERVATION_QUANTITIES) or self.observation_noise_warm
         motion = "motion_scale" not in self.learn or self.motion_scale_warm
-        return bool(self.learn) and observation and motion
+        gains = self.gains is None or bool(self._gain_warm.any())       # the warm-up is re-filtered with them
+        return bool(self.learn) and observation and motion and gains
 
     @property
     def observation_noise_warm(self) -> bool:
@@ -434,6 +443,23 @@ class NoiseLearner:
         """Factor on the motion noise covariance (1 until warmed up or when not learned)."""
         return self.scale_in_use
 
+    @property
+    def learns_gains(self) -> bool:
+        return self.gains is not None
+
+    def motion_config(self):
+        """The motion config to integrate with: the configured one with the gains in use
+        (the motion scale multiplies the covariance it gives)."""
+        key = tuple(self.gains_in_use)
+        if self._motion_config[0] != key:
+            self._motion_config = (key, replace(self.config.motion, translation_gain=float(self.gains_in_use[0]),
+                                                rotation_gain=float(self.gains_in_use[1])))
+        return self._motion_config[1]
+
+    def gains_known(self) -> np.ndarray:
+        """The gains' estimates where known to the tolerance, else the gains in use (2,)."""
+        return np.where(self._gain_warm, self.gains_estimate, self.gains_in_use)
+
     # ------------------------------------------------------------ E-step
     def update(self, data: FilterStepData, n_obs: np.ndarray, ids: np.ndarray | None = None) -> None:
         """Blend in one filter step's statistics and redo the M-step of the noise.
@@ -456,7 +482,7 @@ class NoiseLearner:
             made = self.estimate is self._in_use and weighed is self._in_use
             R = R_filter[use] if made else noise_covariance(self.estimate, data.y[use, 0])
             used = _UsedObservations(data, n_obs, use, R, pose, self.config.sensor, self.estimate)
-        if "motion_scale" in self.learn:
+        if self.learn & MOTION_QUANTITIES:
             self._update_motion(data, used, pose)        # every step: silence is part of the motion
         if "serial_correlation" in self.learn and used is not None:
             self._update_serial(data.step, used, (data.rows if ids is None else np.asarray(ids))[use])
@@ -545,7 +571,14 @@ class NoiseLearner:
         dev[:, 2] = wrap_angle(dev[:, 2])
         self.window.append(motion_residual(data.motion_mean, pose), data.motion_jacobian,
                            (data.motion_cov - jitter) / scale, jitter, np.einsum("n,ni,nj->ij", data.weights, dev, dev))
-        if not self.window.full or used is None or not self._observation_noise_settled:
+        if self.gains is not None:
+            self.sensitivities[:-1] = self.sensitivities[1:]
+            self.sensitivities[-1] = data.motion_gain_sensitivity
+        if not self.window.full or used is None:
+            return
+        if self.gains is not None:
+            self._update_gains(used)
+        if "motion_scale" not in self.learn or not self._observation_noise_settled:
             return
         sample = prediction_statistic(self.window.steps, *self._scan_terms(used), weight_scale=self.scale_in_use)
         if sample is None:
@@ -554,13 +587,43 @@ class NoiseLearner:
         self.motion.blend(np.array([a, b, a * a, a * b, b * b]))         # the moments for motion_scale_error
         low, high = self.settings.motion_scale_limits
         self.scale_estimate = _clip(self.motion.value[1] / self.motion.value[0], low, high)
-        self._motion_warm = self._motion_warm or (self.motion.count >= self.settings.warmup_steps and
-                                                  self.motion_scale_error() <= self.settings.motion_scale_tolerance)
+        known = (self.motion_scale_error() <= self.settings.motion_scale_tolerance
+                 or self._scale_beyond_limit(low, high))
+        self._motion_warm = self._motion_warm or (self.motion.count >= self.settings.warmup_steps and known)
         if self._motion_warm:
             # Move towards the estimate by at most MAX_SCALE_RATE (log) per step: the pose
             # spreads in (M) come from the filter under the scale in use; no jumps.
             ratio = _clip(self.scale_estimate / self.scale_in_use, *_SCALE_RATIO)
             self.scale_in_use = float(self.scale_in_use * ratio)
+
+    def _scale_beyond_limit(self, low: float, high: float) -> bool:
+        """The statistic puts the scale beyond a limit by more than two standard errors: the
+        constrained estimate is the limit, known (a scale the data put at or below 0 has no
+        relative error, and would otherwise never come into use)."""
+        raw = self.motion.value[1] / self.motion.value[0]
+        limit = low if raw < low else high if raw > high else None
+        if limit is None:
+            return False
+        error = math.sqrt(self.settings.motion_window) * absolute_error(self.motion.value, self.motion.squared_weights,
+                                                                        limit)
+        return bool(abs(raw - limit) > 2.0 * error)
+
+    def _update_gains(self, used: _UsedObservations) -> None:
+        """Blend (G) of the window (motion_gains.py); move the gains in use once they are known."""
+        z = gain_statistic(self.window.steps, self.sensitivities, *self._scan_terms(used), self.scale_in_use,
+                           self.gains_in_use)
+        if z is None:
+            return
+        self.gains.blend(z)
+        result = self.gains.estimate()
+        if result is None:
+            return
+        estimate, self.gain_errors = result
+        self.gains_estimate = np.clip(estimate, *self.settings.motion_gain_limits)
+        if self.gains.count >= self.settings.warmup_steps:
+            self._gain_warm |= self.gain_errors <= self.settings.motion_gain_tolerance
+        target = np.where(self._gain_warm, self.gains_estimate, self.gains_in_use)
+        self.gains_in_use = move_towards(self.gains_in_use, target, _SCALE_RATIO)
 
     @staticmethod
     def _scan_terms(used: _UsedObservations):
@@ -625,11 +688,14 @@ class NoiseLearner:
                 "range_growth": noise.range_growth, "model": noise.model, "dof": noise.dof,
                 "serial_correlation": list(noise.serial_correlation),
                 "mixture_weights": list(noise.mixture_weights), "mixture_scales": list(noise.mixture_scales),
-                "motion_scale": self.scale_estimate, "motion_scale_error": _finite_or_none(self.motion_scale_error())}
+                "motion_scale": self.scale_estimate, "motion_scale_error": _finite_or_none(self.motion_scale_error()),
+                "motion_gains": self.gains_estimate.tolist(), "motion_gains_in_use": self._gain_warm.tolist(),
+                "motion_gains_error": [_finite_or_none(float(e)) for e in self.gain_errors]}
 
     def parameters(self) -> dict:
         """The values in use as flat node parameters (noise.*, motion.* standard deviations),
-        the form of a parameter file: the motion scale s is folded into the stds (x sqrt(s))."""
+        the form of a parameter file: the motion scale s is folded into the stds (x sqrt(s)); the
+        learned gains are motion.translation_gain and rotation_gain."""
         noise = self._in_use
         values = {"noise.model": noise.model, "noise.sigma_range": noise.sigma_range,
                   "noise.sigma_bearing": noise.sigma_bearing, "noise.rho": noise.rho,
@@ -637,8 +703,11 @@ class NoiseLearner:
                   "noise.serial_correlation": [float(v) for v in noise.serial_correlation],
                   "noise.mixture_weights": [float(v) for v in noise.mixture_weights],
                   "noise.mixture_scales": [float(v) for v in noise.mixture_scales]}
-        root = math.sqrt(self.motion_scale())
-        values.update({f"motion.{name}": getattr(self.config.motion, name) * root for name in MOTION_STDS})
+        motion = scaled_noise(self.config.motion, self.motion_scale(), self.motion_scale())
+        values.update({f"motion.{name}": getattr(motion, name) for name in TRANSLATION_STDS + ROTATION_STDS})
+        if self.gains is not None:
+            values.update({"motion.translation_gain": float(self.gains_in_use[0]),
+                           "motion.rotation_gain": float(self.gains_in_use[1])})
         return values
 
 

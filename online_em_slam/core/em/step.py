@@ -27,7 +27,9 @@ class FilterStepData:
     innovations and H (N, P, 2, 2) Jacobians dh/dtheta at theta_{t-1};
     precision (N, P, 2, 2) R^-1 weighted by the mixture responsibilities;
     motion_mean (3,), motion_jacobian (3, 3), motion_cov (3, 3): the transition of
-    the previous weighted mean pose (the linearisation track of the observed M-step).
+    the previous weighted mean pose (the linearisation track of the observed M-step);
+    motion_gain_sensitivity (3, 2): d motion_mean / d (translation_gain, rotation_gain),
+    when it learns the gains.
     """
 
     step: int
@@ -48,6 +50,7 @@ class FilterStepData:
     motion_mean: np.ndarray
     motion_jacobian: np.ndarray
     motion_cov: np.ndarray
+    motion_gain_sensitivity: np.ndarray | None = None
 
 
 class MStep(Protocol):

@@ -210,11 +210,12 @@ class OnlineEMSlam:
         # linearisation track) rides along as one more row of the same call.
         poses = np.vstack([self._pred_mean, self._track_pose])
         covs = np.concatenate([self._pred_cov, self._track_cov[None]])
-        mean, cov, F = motion_models.integrate_segments(self.config.motion, poses, covs, controls, dts,
+        mean, cov, F = motion_models.integrate_segments(self._noise.motion_config(), poses, covs, controls, dts,
                                                         with_jacobian=True)
+        sensitivity = self._track_gain_sensitivity(controls, dts, mean[-1], F[-1])
         self._pending_controls.clear()
         self._pending_dts.clear()
-        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov)) and np.all(np.isfinite(sensitivity))):
             # Never let one step poison the estimate: keep the last finite state.
             self.drops["non_finite_prediction"] += 1
             return
@@ -222,6 +223,23 @@ class OnlineEMSlam:
         self._pred_mean, self._pred_cov = mean[:-1], cov[:-1]
         self._track_pose, self._track_cov = mean[-1], cov[-1]
         self._track_jacobian = F[-1] @ self._track_jacobian
+        self._track_sensitivity = sensitivity
+
+    def _track_gain_sensitivity(self, controls: np.ndarray, dts: np.ndarray, moved: np.ndarray,
+                                jacobian: np.ndarray) -> np.ndarray:
+        """d track mean / d (translation_gain, rotation_gain) since the last filter step (3, 2):
+        the earlier segments' carried by this flush's Jacobian, plus this flush's, by a forward
+        difference of the motion integration (``moved``: the track's mean after it)."""
+        if not self._noise.learns_gains:
+            return self._track_sensitivity
+        config, pose = self._noise.motion_config(), self._track_pose[None]
+        D = np.empty((3, 2))
+        for j, name in enumerate(("translation_gain", "rotation_gain")):
+            step = 1e-6 * getattr(config, name)
+            nudged = replace(config, **{name: getattr(config, name) + step})
+            D[:, j] = (motion_models.integrate_segments(nudged, pose, np.zeros((1, 3, 3)), controls, dts)[0][0]
+                       - moved) / step
+        return jacobian @ self._track_sensitivity + D
 
     def _advance_to(self, stamp: float) -> None:
         """Integrate the held control up to ``stamp`` (zero-order hold)."""
@@ -290,11 +308,12 @@ class OnlineEMSlam:
         from the learned noise (docs/METHOD.md, "Noise learned online").  Once."""
         # The motion scale's estimate, not the one in use: that one moves towards the
         # estimate at a bounded rate and would filter the replay's first steps at the start value.
-        log, noise, scale = self._warmup_log, self._noise.noise_config(), self._noise.scale_estimate
+        log, noise = self._warmup_log, self._noise.noise_config()
+        scale, gains = self._noise.scale_estimate, self._noise.gains_known()
         drops = dict(self.drops)                    # the replayed inputs were counted already
         self.reset(*self._warmup_start)
         self._warmup_log = None
-        self._noise.start_from(noise, scale)
+        self._noise.start_from(noise, scale, gains)
         for method, stamp, value in log:
             getattr(self, method)(stamp, value)
         self.drops.clear()
@@ -420,7 +439,8 @@ class OnlineEMSlam:
             transition_covs=trans_cov, rows=rows, y=terms.y, R=terms.R, sensor=sensor, nu=terms.nu,
             H=terms.H, precision=terms.precision, motion_mean=self._track_pose,
             motion_jacobian=self._track_jacobian,
-            motion_cov=self._track_cov * self._noise.motion_scale() + motion_models.step_jitter(self.config.motion))
+            motion_cov=self._track_cov * self._noise.motion_scale() + motion_models.step_jitter(self.config.motion),
+            motion_gain_sensitivity=self._track_sensitivity)
 
     def _commit(self, particles, weights, pose_correction) -> None:
         """New anchors for the next transition, moved by the M-step's pose correction."""
@@ -442,6 +462,7 @@ class OnlineEMSlam:
         self._track_pose = pose.copy()
         self._track_jacobian = np.eye(3)
         self._track_cov = np.zeros((3, 3))
+        self._track_sensitivity = np.zeros((3, 2))
 
     # ------------------------------------------------------------------ association
     def _associate(self, obs: Observations, sensor: np.ndarray, prior_weights: np.ndarray,
@@ -612,7 +633,7 @@ class OnlineEMSlam:
             noise = replace(noise, dof=float(arrays["noise_dof"]))
         if "noise_serial" in arrays:
             noise = replace(noise, serial_correlation=tuple(float(v) for v in arrays["noise_serial"]))
-        self._noise.start_from(noise, scale)
+        self._noise.start_from(noise, scale)       # the file has no motion gains: they are learned again
 
     def save_map(self, path: str) -> None:
         """Write map, statistics, counts and pose atomically (core/mapping/mapfile.py).

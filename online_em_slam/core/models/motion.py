@@ -18,6 +18,8 @@ received between two scans in one vectorised pass.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .angles import wrap_angle
@@ -174,9 +176,19 @@ def odometry(config: MotionConfig, poses: np.ndarray, increment: np.ndarray, dt:
 MODELS = {"bicycle": bicycle, "acfr": acfr, "unicycle": unicycle, "odometry": odometry}
 
 
+def calibrated(config: MotionConfig, control: np.ndarray) -> np.ndarray:
+    """The motion input times its gains: (speed, steering or yaw rate) by (translation_gain,
+    rotation_gain); an odometry increment (dx, dy, dphi) by (translation, translation, rotation)."""
+    control = np.asarray(control, dtype=float)
+    if config.translation_gain == 1.0 and config.rotation_gain == 1.0:
+        return control
+    t, r = config.translation_gain, config.rotation_gain
+    return control * (np.array([t, t, r]) if control.shape[-1] == 3 else np.array([t, r]))
+
+
 def propagate(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):
-    """Dispatch to the configured model: returns (f(X, u), F, G Q G^T)."""
-    return MODELS[config.model](config, np.asarray(poses, dtype=float), np.asarray(control, dtype=float), dt)
+    """Dispatch to the configured model: returns (f(X, u), F, G Q G^T) for the calibrated input."""
+    return MODELS[config.model](config, np.asarray(poses, dtype=float), calibrated(config, control), dt)
 
 
 def _through_lever(P: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -196,14 +208,14 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
                        controls: np.ndarray, dts: np.ndarray, with_jacobian: bool = False):
     """Apply K consecutive control segments to every pose in one vectorised pass.
 
-    Equivalent to K calls of :func:`propagate` with mean <- f(mean, u_k) and
+    Equivalent to K calls of :func:`propagate` (the calibrated inputs) with mean <- f(mean, u_k) and
     P <- F_k P F_k^T + Q_k.  It relies on two properties shared by all models:
     the yaw increment does not depend on the pose, so every heading along the
     way is known up front, and the Jacobians are I + s_k e_yaw^T, so
     P_K = A_0 P_0 A_0^T + sum_k A_k Q_k A_k^T with A_k = I + (sum_{j>k} s_j) e_yaw^T.
     With ``with_jacobian`` the compounded Jacobian A_0 (N, 3, 3) is returned too.
     """
-    controls = np.asarray(controls, dtype=float)
+    controls = calibrated(config, controls)
     dts = np.asarray(dts, dtype=float)
     k, n = dts.shape[0], poses.shape[0]
     if k == 0:
@@ -228,6 +240,25 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
     jacobian = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
     jacobian[:, :2, 2] = from_k[0]
     return new, cov, jacobian
+
+
+# The two groups of motion noise: what drives the distance travelled (speed, translation)
+# and what drives the turning (steering or yaw rate, heading, rotation).  Every model's
+# G Q G^T is a sum of terms quadratic in one group's standard deviations, so scaling a
+# group's variances by a scales its share of the covariance by a, exactly.
+TRANSLATION_STDS = ("sigma_speed", "odometry_translation_std", "odometry_translation_per_meter")
+ROTATION_STDS = ("sigma_steering", "sigma_heading", "odometry_rotation_std", "odometry_rotation_per_radian",
+                 "odometry_rotation_per_meter")
+
+
+def scaled_noise(config: MotionConfig, translation: float = 1.0, rotation: float = 1.0) -> MotionConfig:
+    """``config`` with the translation group's noise variances times ``translation`` and the
+    rotation group's times ``rotation``: its covariance is translation Q_T + rotation Q_R."""
+    if translation == 1.0 and rotation == 1.0:
+        return config
+    a, b = float(np.sqrt(translation)), float(np.sqrt(rotation))
+    return replace(config, **{name: getattr(config, name) * a for name in TRANSLATION_STDS},
+                   **{name: getattr(config, name) * b for name in ROTATION_STDS})
 
 
 def step_jitter(config: MotionConfig) -> np.ndarray:

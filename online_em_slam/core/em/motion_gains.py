@@ -1,0 +1,96 @@
+"""The calibration of the motion input learned online: a gain on the speed and one on the turning.
+
+Wheel radii, track widths and commanded velocities are rarely what the data
+sheet says: a robot that turns 0.6 times its commanded yaw rate (UTIAS MRCLAM,
+Dataset 9) makes a heading error that grows with every turn, which no noise
+model explains.  The gains kappa = (translation_gain, rotation_gain) of the
+motion model (models/motion.py, ``calibrated``) are parameters of the HMM like
+the map, and the same window as the motion scale's statistic (M) estimates
+them: the pose predicted open loop over the last L filter steps,
+x_pred(kappa) = xbar_t + C(kappa), gives the scan's prediction error
+
+    nu(kappa) = nu_t - B_t (kappa - kappa_t),   B_t = H_x sum_k Phi(t, k) D_k          (G)
+
+to first order, D_k = d f_k / d kappa the step's sensitivity to the gains and
+kappa_t the gains in use when step t was filtered.  With nu ~ N(0, S_t) at the
+true gains, the maximum-likelihood kappa of all scans solves the normal
+equations N kappa = h, averaged over scans:
+
+    N = mean_t B_t^T S_t^-1 B_t,   h = mean_t B_t^T S_t^-1 (nu_t + B_t kappa_t).
+
+A robot standing still or never turning informs neither gain (N singular):
+they then stay where they are.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .averages import StochasticAverage
+from .motion_noise import MotionSteps, block_diagonal, compound
+
+MAX_CONDITION = 1e6                   # N (unit diagonal) solved only when both gains are informed
+
+
+def transported(F: np.ndarray, terms: np.ndarray) -> np.ndarray:
+    """sum_k Phi(t, k) terms_k for steps k = 0..L-1 of Jacobians F (L, 3, 3), terms (L, 3, m):
+    each step's effect carried to the window's end (Phi(t, k) = F_{L-1} ... F_{k+1})."""
+    total = np.zeros(terms.shape[1:])
+    for k in range(F.shape[0]):
+        total = F[k] @ total + terms[k]
+    return total
+
+
+def gain_statistic(steps: MotionSteps, D: np.ndarray, pose_jacobian: np.ndarray, innovation: np.ndarray,
+                   noise_cov: np.ndarray, scale: float, gains: np.ndarray) -> np.ndarray | None:
+    """z = (N_t (2, 2) flattened, h_t (2,)) of (G) for the scan at the window's end.
+
+    ``steps`` as for motion_noise.prediction_statistic (Q over the scale in use), ``D``
+    (L, 3, 2) each step's sensitivity of the mean pose to the gains, ``gains`` the gains
+    in use (2,), ``scale`` the motion scale in use.
+    """
+    C, Q, J, Phi = compound(steps[1:])
+    Hx = pose_jacobian.reshape(-1, 3)
+    nu = innovation.reshape(-1) - Hx @ C
+    B = Hx @ transported(steps.F[1:], D[1:])
+    S = Hx @ (Phi @ steps.P[0] @ Phi.T + J + scale * Q) @ Hx.T + block_diagonal(noise_cov)
+    try:
+        S_inv_B = np.linalg.solve(S, B)
+    except np.linalg.LinAlgError:
+        return None
+    N = B.T @ S_inv_B
+    h = S_inv_B.T @ (nu + B @ gains)
+    z = np.concatenate([N.ravel(), h])
+    return z if np.all(np.isfinite(z)) and np.trace(N) > 0 else None
+
+
+class MotionGains:
+    """The average of (G)'s normal equations; the gains, their standard errors."""
+
+    def __init__(self, alpha: float, window: int) -> None:
+        self.average = StochasticAverage(alpha)
+        self.window = window              # consecutive windows share all but one step: variance x L
+
+    @property
+    def count(self) -> int:
+        return self.average.count
+
+    def blend(self, z: np.ndarray) -> None:
+        self.average.blend(z)
+
+    def estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(gains (2,), their standard errors (2,)) from the averages, None while N is singular."""
+        if self.average.value is None:
+            return None
+        N, h = self.average.value[:4].reshape(2, 2), self.average.value[4:]
+        d = np.sqrt(np.maximum(np.diag(N), 1e-300))
+        if not np.linalg.cond(N / np.outer(d, d)) < MAX_CONDITION:
+            return None
+        N_inv = np.linalg.inv(N)
+        variance = self.window * self.average.squared_weights * np.diag(N_inv)
+        return N_inv @ h, np.sqrt(np.maximum(variance, 0.0))
+
+
+def move_towards(in_use: np.ndarray, target: np.ndarray, ratio: tuple[float, float]) -> np.ndarray:
+    """Each gain moved towards its target by at most the factor ``ratio`` allows."""
+    return in_use * np.clip(target / in_use, *ratio)
+
