@@ -321,3 +321,15 @@ def test_metrics_json_is_not_written_through_a_planted_symlink(tmp_path):
     assert victim.read_text() == "precious\n"
     assert (tmp_path / "metrics.json").read_text() == '{\n  "rmse": 1.0\n}\n'
     assert sorted(os.listdir(tmp_path)) == ["metrics.json", "metrics.json.tmp", "victim.txt"]
+
+
+def test_a_relative_map_file_without_a_directory_is_resolved_once(tmp_path, monkeypatch):
+    """Reliability, second round, item 5: map_file dir/sub/m.npz saved to dir/sub/dir/sub/m.npz."""
+    monkeypatch.chdir(tmp_path)
+    path = mapfile.confined_path(*mapfile.map_file_path("dir/sub/m.npz"))
+    assert path == str(tmp_path / "dir" / "sub" / "m.npz")
+    assert mapfile.confined_path(*mapfile.map_file_path("m.npz")) == str(tmp_path / "m.npz")
+    assert mapfile.confined_path(*mapfile.map_file_path("sub/m.npz", str(tmp_path / "maps"))) == \
+        str(tmp_path / "maps" / "sub" / "m.npz")
+    with pytest.raises(mapfile.MapFileError, match="'..'"):
+        mapfile.confined_path(*mapfile.map_file_path("../m.npz", str(tmp_path / "maps")))

@@ -302,3 +302,17 @@ def test_a_watched_stream_follows_a_jump_confirmed_by_the_merged_streams():
     restarted = [path.push(CONTROL, 10.0 + 0.025 * k, (1.0, 0.0), 0.0).restarted for k in range(3)]
     assert restarted == [False, False, True]
     assert path.on_time_line(ODOMETRY, 10.05)          # odometry of the new line: used again
+
+
+def test_a_forward_time_jump_is_a_gap_not_lost_messages():
+    """Reliability, second round, item 3: stamps jump 1e4 s ahead (confirmed by three inputs):
+    nothing was lost, so no odometry_lost / observations_lost; the loss detection still works after."""
+    path = InputPath((ODOMETRY, OBSERVATIONS), silence=1.0, jump_threshold=1.0)
+    for k in range(200):
+        t = 0.05 * k + (1e4 if k >= 100 else 0.0)
+        path.push(ODOMETRY, t, None, 0.05 * k)
+        if k % 4 == 0:
+            path.push(OBSERVATIONS, t, obs(5.0), 0.05 * k)
+    assert path.drops["odometry_lost"] == 0 and path.drops["observations_lost"] == 0, path.drops
+    path.push(ODOMETRY, 0.05 * 205 + 1e4, None, 10.3)          # 5 odometry messages missing after the jump
+    assert path.drops["odometry_lost"] == 5

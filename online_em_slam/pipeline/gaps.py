@@ -57,6 +57,12 @@ class GapDetector:
     def reset(self) -> None:
         self._streams = {k: _Stream() for k in self.kinds}
 
+    def rebase(self) -> None:
+        """The time line jumped (a confirmed jump): the next stamps start anew, the periods stay.
+        A jump is a gap in the stamps, not messages that never arrived."""
+        for stream in self._streams.values():
+            stream.last, stream.refused = None, 0
+
     def period(self, kind: int) -> float | None:
         stream = self._streams.get(kind)
         return None if stream is None else stream.period

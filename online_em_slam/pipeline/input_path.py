@@ -97,6 +97,8 @@ class InputPath:
         if restart:
             self.gaps.reset()
             self.sequencer.reset()
+        else:
+            self.gaps.rebase()
         released = []
         for item in verdict.released:
             released += self._sequence(item, wall)

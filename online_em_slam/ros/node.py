@@ -56,7 +56,7 @@ from visualization_msgs.msg import MarkerArray
 from ..core.models.angles import wrap_angle
 from ..core.filter.slam import OnlineEMSlam
 from ..pipeline import CONTROL, KIND_NAME, OBSERVATIONS, ODOMETRY, Fed, Feeder, InputPath, LoadMonitor
-from ..core.mapping.mapfile import confined_path
+from ..core.mapping.mapfile import confined_path, map_file_path
 from . import conversions as conv
 from .initial_pose import pose_and_std
 
@@ -691,13 +691,11 @@ class OnlineEmSlamNode(Node):
         return response
 
     def _map_directory(self) -> str:
-        s = self._settings
-        directory = s.map_directory.strip() or os.path.dirname(os.path.expanduser(s.map_file.strip()))
-        return os.path.abspath(os.path.expanduser(directory or "."))
+        return map_file_path(self._settings.map_file, self._settings.map_directory)[1]
 
     def _map_path(self) -> str:
         """map_file resolved inside map_directory (MapFileError if it escapes: '..', symlinks)."""
-        return confined_path(self._settings.map_file, self._map_directory())
+        return confined_path(*map_file_path(self._settings.map_file, self._settings.map_directory))
 
     def _srv_save_map(self, request, response):
         with self._lock:

@@ -327,6 +327,19 @@ def read_map(path, max_landmarks: int = MAX_LANDMARKS) -> dict[str, np.ndarray]:
 
 
 # ----------------------------------------------------------------- confinement
+def map_file_path(map_file: str, map_directory: str = "") -> tuple[str, str]:
+    """(file name, directory) of the node's map_file / map_directory parameters, for :func:`confined_path`.
+
+    Without a map directory the map file's own directory is the one (relative to the
+    working directory), and the file name is its base name: joining the whole relative
+    path again would put ``dir/sub/m.npz`` at ``dir/sub/dir/sub/m.npz``.
+    """
+    if map_directory.strip():
+        return map_file, os.path.abspath(os.path.expanduser(map_directory.strip()))
+    path = os.path.expanduser(map_file.strip())
+    return os.path.basename(path), os.path.abspath(os.path.dirname(path) or ".")
+
+
 def confined_path(file_name: str, directory: str) -> str:
     """Absolute path of ``file_name`` inside ``directory``, or MapFileError.
 
