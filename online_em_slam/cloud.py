@@ -26,7 +26,7 @@ _NUMPY_OF = {INT8: "i1", UINT8: "u1", INT16: "i2", UINT16: "u2", INT32: "i4",
              UINT32: "u4", FLOAT32: "f4", FLOAT64: "f8"}
 _DATATYPE_OF = {np.dtype(v).str[1:]: k for k, v in _NUMPY_OF.items()}
 
-# Layout of the landmark observations the node consumes (see README).
+# Layout of the landmark observations the node consumes (docs/NODE.md, "Inputs").
 OBSERVATION_FIELDS = (("x", "f4"), ("y", "f4"), ("z", "f4"), ("range", "f4"),
                       ("bearing", "f4"), ("id", "i4"), ("range_std", "f4"), ("bearing_std", "f4"))
 # Layout of the landmark map the node publishes.
