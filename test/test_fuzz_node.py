@@ -225,3 +225,22 @@ def test_observation_clouds_in_unexpected_frames_are_counted(ros):
                           and ros.diagnostics().get("unexpected_frame.camera") == "1", 5.0), ros.diagnostics()
     assert not any(k.startswith("unexpected_frame.") and k[17:] in ("laser", "base_link") for k in ros.diagnostics())
     assert node.slam.landmarks().n_obs.sum() == 10
+
+
+def test_frames_without_a_name_or_changing_are_counted(ros):
+    """Reliability, second round, item 7: an empty cloud frame, an odometry header frame that is not
+    odom_frame, and (sensor_frame unset) a cloud frame other than the first cloud's are counted."""
+    ros.start(motion_source="odom", publish_particles=False)
+    for k, (cloud_frame, odom_frame) in enumerate((("laser", "odom"), ("", "odom"), ("camera", ""),
+                                                   ("laser", "world"), ("base_link", "odom"))):
+        msg = odometry(T0 + DT * k, SPEED * DT * k)
+        msg.header.frame_id = odom_frame
+        ros.odom_pub.publish(msg)
+        msg = cloud(T0 + DT * k, *scan(T0, SPEED * DT * k))
+        msg.header.frame_id = cloud_frame
+        ros.cloud_pub.publish(msg)
+    expected = {"unexpected_frame.(empty)": "1", "unexpected_frame.camera": "1",
+                "unexpected_odom_frame.(empty)": "1", "unexpected_odom_frame.world": "1"}
+    assert ros.spin_until(lambda: all(ros.diagnostics().get(k) == v for k, v in expected.items()), 5.0), \
+        ros.diagnostics()
+    assert "unexpected_frame.laser" not in ros.diagnostics() and "unexpected_frame.base_link" not in ros.diagnostics()

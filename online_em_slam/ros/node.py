@@ -288,7 +288,7 @@ class OnlineEmSlamNode(Node):
         yaw, quaternion_problem = conv.odometry_yaw(q)
         pose = np.array([p.x, p.y, yaw], dtype=float)
         with self._lock:
-            self._frames.check_odometry(msg.child_frame_id, self._settings)
+            self._frames.check_odometry(msg.child_frame_id, self._settings, msg.header.frame_id)
             if quaternion_problem == "degenerate_quaternion":
                 self._refuse(ODOMETRY, stamp, quaternion_problem, "odometry with a degenerate (zero or "
                              f"yaw-less) orientation quaternion ({q.x}, {q.y}, {q.z}, {q.w})", started)

@@ -142,9 +142,12 @@ class SensorFrames:
     is read as in the sensor frame of the parameters.  A cloud in a frame that
     is neither the configured ``sensor_frame`` (or ``base_frame``) nor resolvable
     through TF, or in ``map_frame``/``odom_frame``, is used but counted
-    (``unexpected_frame.<frame>``), and an odometry message whose
-    ``child_frame_id`` is not ``base_frame`` is counted
-    (``unexpected_child_frame.<frame>``); each frame is warned about once.
+    (``unexpected_frame.<frame>``); so is a cloud without a frame id, and, with
+    ``sensor_frame`` unset, a cloud in another frame than the first cloud's (the
+    sensor frame then).  An odometry message whose ``child_frame_id`` is not
+    ``base_frame`` is counted (``unexpected_child_frame.<frame>``), one whose
+    ``header.frame_id`` is not ``odom_frame`` too (``unexpected_odom_frame.<frame>``);
+    each frame is warned about once.
     """
 
     def __init__(self, node, warn=None) -> None:
@@ -158,6 +161,8 @@ class SensorFrames:
             self._buffer = None
         self.unexpected_frames: Counter = Counter()          # observation clouds by frame id
         self.unexpected_child_frames: Counter = Counter()    # odometry by child_frame_id
+        self.unexpected_odom_frames: Counter = Counter()     # odometry by header.frame_id
+        self.first_cloud_frame: str | None = None            # the sensor frame when sensor_frame is unset
         self.placed_by_tf = 0                                # clouds whose sensor pose came from TF
         self.tf_failures = 0                                 # lookups that fell back to the parameters
         self._warned: set = set()
@@ -171,7 +176,12 @@ class SensorFrames:
             self._warned.add(key)
             self._warn(message)
 
-    def check_odometry(self, child_frame_id: str, settings) -> None:
+    def check_odometry(self, child_frame_id: str, settings, frame_id: str | None = None) -> None:
+        if frame_id is not None and frame_id != settings.odom_frame:
+            self.unexpected_odom_frames[frame_id] += 1
+            self._warn_once(("odom", frame_id),
+                            f"odometry in frame {frame_id!r}, not odom_frame {settings.odom_frame!r}: used as "
+                            "odometry, counted as unexpected_odom_frame (warned once)")
         if child_frame_id == settings.base_frame:
             return
         self.unexpected_child_frames[child_frame_id] += 1
@@ -198,13 +208,15 @@ class SensorFrames:
 
     def observations(self, frame: str, stamp: float, observations, settings, sensor):
         """The cloud's observations in the estimator's sensor frame; counts unexpected frames."""
-        if frame in (settings.map_frame, settings.odom_frame):
+        if frame in (settings.map_frame, settings.odom_frame, ""):
             self._unexpected(frame, settings)
             return observations
+        if self.first_cloud_frame is None:
+            self.first_cloud_frame = frame
         pose = self.lookup(frame, stamp, settings)
         if pose is None:
-            expected = {settings.sensor_frame, settings.base_frame} if settings.sensor_frame else None
-            if expected and frame not in expected:
+            sensor_frame = settings.sensor_frame or self.first_cloud_frame
+            if frame not in (sensor_frame, settings.base_frame):
                 self._unexpected(frame, settings)
             return observations
         self.placed_by_tf += 1
@@ -223,7 +235,8 @@ class SensorFrames:
         self.unexpected_frames[frame] += 1
         through = ", nor resolvable through TF" if self.uses_tf else ""
         self._warn_once(("cloud", frame),
-                        f"observation cloud in frame {frame!r}, not {settings.sensor_frame or 'a sensor frame'!r}"
+                        f"observation cloud in frame {frame!r}, not "
+                        f"{settings.sensor_frame or self.first_cloud_frame or 'a sensor frame'!r}"
                         f"{through}: read as sensor-relative, counted as unexpected_frame (warned once)")
 
     def diagnostics(self) -> dict:
@@ -231,6 +244,8 @@ class SensorFrames:
                   for frame, count in sorted(self.unexpected_frames.items())}
         values.update({f"unexpected_child_frame.{frame or '(empty)'}": count
                        for frame, count in sorted(self.unexpected_child_frames.items())})
+        values.update({f"unexpected_odom_frame.{frame or '(empty)'}": count
+                       for frame, count in sorted(self.unexpected_odom_frames.items())})
         if self.uses_tf:
             values.update({"sensor_pose_from_tf": self.placed_by_tf, "sensor_pose_tf_failures": self.tf_failures})
         return values
