@@ -40,6 +40,10 @@ def write_bag(path, messages: Iterable[tuple[int, str, str, object]], typestore)
     return written
 
 
+class BagError(ValueError):
+    """A bag that cannot be read (not a bag, truncated, corrupt): names the bag and the problem."""
+
+
 def _open(path):
     from rosbags.highlevel import AnyReader
     path = Path(path)
@@ -68,6 +72,16 @@ def read_bag_timed(path, topics: Iterable[str] | None = None,
     ``decode(topic)``, asked per message, False: the message is not deserialized
     (yielded as None, stamped with its log time), for passes that only count.
     """
+    try:
+        yield from _read_timed(path, topics, decode)
+    except (BagError, FileNotFoundError):
+        raise
+    except Exception as error:  # noqa: BLE001 - rosbags raises many kinds on a bad file
+        first_line = (str(error).splitlines() or [""])[0]
+        raise BagError(f"{path}: cannot read the bag: {type(error).__name__}: {first_line}") from None
+
+
+def _read_timed(path, topics, decode):
     wanted = None if topics is None else set(topics)
     with _open(path) as reader:
         conns = [c for c in reader.connections if wanted is None or c.topic in wanted]

@@ -98,8 +98,14 @@ def params_from_document(document: Mapping[str, Any], node_name: str = NODE_NAME
 def load_params(path, node_name: str = NODE_NAME) -> dict[str, Any]:
     """Flat ``{dotted name: value}`` of ``node_name`` from the ROS 2 params YAML at ``path``."""
     path = Path(os.path.expanduser(os.fspath(path)))
-    with open(path, encoding="utf-8") as handle:
-        document = yaml.safe_load(handle)
+    try:
+        with open(path, encoding="utf-8") as handle:
+            document = yaml.safe_load(handle)
+    except (yaml.YAMLError, UnicodeDecodeError) as error:
+        where = getattr(error, "problem_mark", None)
+        line = f" (line {where.line + 1})" if where is not None else ""
+        raise ParamFileError(f"{path}: not a YAML parameter file{line}: "
+                             f"{getattr(error, 'problem', None) or error}") from None
     if document is None:
         return {}
     return params_from_document(document, node_name, source=str(path))

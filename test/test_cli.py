@@ -135,3 +135,34 @@ def test_params_build_importable_without_ros():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "acfr"
+
+
+@pytest.mark.parametrize("make", ["plain_file", "truncated_mcap", "garbage_metadata", "params_not_yaml"])
+def test_bad_files_give_one_line_naming_the_file_and_exit_1(tmp_path, capsys, make):
+    """Reliability, second round, item 6: no traceback, exit status 1, the file named."""
+    import shutil
+
+    from online_em_slam.cli import main
+    from online_em_slam.kth.convert import convert
+
+    good = tmp_path / "good"
+    convert("car_park", good, progress=False)
+    mcap = next(good.glob("*.mcap"))
+    params = Path(__file__).resolve().parents[1] / "config" / "car_park.yaml"
+    bag = tmp_path / make
+    if make == "plain_file":
+        bag.write_text("hello\n")
+    elif make == "truncated_mcap":
+        shutil.copytree(good, bag)
+        data = (bag / mcap.name).read_bytes()
+        (bag / mcap.name).write_bytes(data[: len(data) // 3])
+    elif make == "garbage_metadata":
+        shutil.copytree(good, bag)
+        (bag / "metadata.yaml").write_text("garbage: {{{\n")
+    else:
+        bag, params = good, tmp_path / "params.yaml"
+        params.write_text("x: [\n")
+    code = main(["run", str(bag), "--params", str(params), "--output", str(tmp_path / "out"), "--no-plot"])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and len(err.splitlines()) == 1 and err.startswith("online-em-slam: error: ")
+    assert str(bag if make != "params_not_yaml" else params) in err
