@@ -6,9 +6,14 @@ rosbags messages in log-time order with the stamp to use for each;
 """
 from __future__ import annotations
 
+import shutil
 from collections import Counter
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
+
+import numpy as np
+
+from .progress import Progress
 
 
 def _typestore():
@@ -42,6 +47,64 @@ def write_bag(path, messages: Iterable[tuple[int, str, str, object]], typestore)
 
 class BagError(ValueError):
     """A bag that cannot be read (not a bag, truncated, corrupt): names the bag and the problem."""
+
+
+def latched_qos():
+    """The offered QoS of a latched topic (TRANSIENT_LOCAL, depth 1), as /tf_static's."""
+    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
+                                    QosReliability, QosTime)
+    zero = QosTime(sec=0, nsec=0)
+    return [Qos(history=QosHistory.KEEP_LAST, depth=1, reliability=QosReliability.RELIABLE,
+                durability=QosDurability.TRANSIENT_LOCAL, deadline=zero, lifespan=zero,
+                liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=zero,
+                avoid_ros_namespace_conventions=False)]
+
+
+def message_order(per_topic_ns: dict, priority: dict) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """Time order of every message of a converter: per topic its stamps (ns) -> (stamps_ns, topics,
+    index within topic), sorted by stamp, then ``priority[topic]`` (static data first, motion before
+    sensing), then index."""
+    topics = list(per_topic_ns)
+    stamps = np.concatenate([per_topic_ns[t] for t in topics])
+    prio = np.concatenate([np.full(len(per_topic_ns[t]), priority[t]) for t in topics])
+    index = np.concatenate([np.arange(len(per_topic_ns[t])) for t in topics])
+    order = np.lexsort((index, prio, stamps))
+    names = sorted(priority, key=priority.get)
+    return stamps[order], [names[p] for p in prio[order]], index[order]
+
+
+def clear_bag_directory(output: Path, overwrite: bool) -> None:
+    """Refuse an existing ``output`` unless ``overwrite`` and it is a bag (or empty); then remove it."""
+    if not output.exists():
+        return
+    if not overwrite:
+        raise FileExistsError(f"{output} exists (use --overwrite)")
+    if not (output / "metadata.yaml").exists() and any(output.iterdir()):
+        raise FileExistsError(f"{output} exists and does not look like a bag; not removing it")
+    shutil.rmtree(output)
+
+
+def write_topics(output, messages, counts: dict, msgtypes: dict, latched, typestore, storage: str = "mcap",
+                 label: str = "", progress: bool = True, stream=None) -> dict[str, int]:
+    """A converter's bag: one connection per topic of ``counts`` (messages expected per topic; in
+    the order of ``msgtypes``), latched ones offered TRANSIENT_LOCAL, then ``messages``
+    (stamp_ns, topic, msgtype, message) written in order; returns messages written per topic."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    written = {t: 0 for t in counts}
+    bar = Progress(sum(counts.values()), label, stream=stream, enabled=progress)
+    with Writer(output, version=9, storage_plugin=plugin) as writer:
+        order = list(msgtypes)
+        conns = {topic: writer.add_connection(topic, msgtypes[topic], typestore=typestore,
+                                              offered_qos_profiles=latched_qos() if topic in latched else ())
+                 for topic in sorted(counts, key=order.index)}
+        for stamp, topic, msgtype, msg in messages:
+            writer.write(conns[topic], stamp, typestore.serialize_cdr(msg, msgtype))
+            written[topic] += 1
+            bar.update()
+    bar.close()
+    return written
 
 
 def _open(path):

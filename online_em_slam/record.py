@@ -63,7 +63,7 @@ class Recorder:
             self._subscribe(topic, types[topic][0])
 
     def _subscribe(self, topic: str, type_name: str) -> None:
-        from .kth.convert import latched_qos
+        from .bagio import latched_qos
         from .replay import message_class
         from .topic_tool import matching_qos
 

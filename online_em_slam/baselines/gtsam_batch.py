@@ -121,17 +121,12 @@ def batch_estimate(scenario, config: SlamConfig | None = None, n_landmarks: int 
         n_landmarks = 1 + max((int(s.true_ids.max()) for s in steps if len(s.true_ids)), default=-1)
     initial, landmark_guess = dead_reckoning(scenario, config, n_landmarks)
     graph, values = _factor_graph(gtsam, scenario, config, n_landmarks, initial, initial_pose_std)
-    X, L = _symbols(gtsam)
+    X, L = symbols(gtsam)
     observed = np.flatnonzero(np.isfinite(landmark_guess[:, 0]))
     for j in observed:
         values.insert(L(int(j)), gtsam.Point2(float(landmark_guess[j, 0]), float(landmark_guess[j, 1])))
 
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(1e-8)
-    params.setAbsoluteErrorTol(1e-8)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    result = optimizer.optimize()
+    optimizer, result = levenberg_marquardt(gtsam, graph, values, max_iterations)
 
     poses = np.array([[p.x(), p.y(), p.theta()] for p in (result.atPose2(X(k)) for k in range(len(steps) + 1))])
     landmarks = np.full((n_landmarks, 2), np.nan)
@@ -143,7 +138,17 @@ def batch_estimate(scenario, config: SlamConfig | None = None, n_landmarks: int 
                        iterations=int(optimizer.iterations()))
 
 
-def _symbols(gtsam):
+def levenberg_marquardt(gtsam, graph, values, max_iterations: int):
+    """(optimizer, optimum) of Levenberg-Marquardt from ``values``, to relative and absolute error 1e-8."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    params.setRelativeErrorTol(1e-8)
+    params.setAbsoluteErrorTol(1e-8)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    return optimizer, optimizer.optimize()
+
+
+def symbols(gtsam):
     """Keys of pose k and landmark j."""
     return (lambda k: gtsam.symbol("x", k)), (lambda j: gtsam.symbol("l", j))
 
@@ -151,7 +156,7 @@ def _symbols(gtsam):
 def _factor_graph(gtsam, scenario, config: SlamConfig, n_landmarks: int, initial: np.ndarray,
                   initial_pose_std) -> tuple:
     """(B1) prior and between factors from the controls, (B2) bearing-range factors; pose values."""
-    X, L = _symbols(gtsam)
+    X, L = symbols(gtsam)
     sensor = config.sensor
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     graph.add(gtsam.PriorFactorPose2(X(0), gtsam.Pose2(*initial[0]),

@@ -47,7 +47,7 @@ from ..core.models.motion import propagate, step_jitter
 from ..core.models.observation import (MIN_DISTANCE, information_noise, inverse_observation, noise_covariance,
                                        sensor_poses)
 from ..pipeline.inputs import CONTROL, OBSERVATIONS, ODOMETRY
-from .gtsam_batch import _symbols, compose, tangent_covariance
+from .gtsam_batch import compose, levenberg_marquardt, symbols, tangent_covariance
 
 
 @dataclass
@@ -286,14 +286,9 @@ def batch_from_inputs(events, config: SlamConfig, initial_pose, max_iterations: 
     else:
         initial, ids, landmark_guess = initial_guess(problem, config, initial_pose)
 
-    X, L = _symbols(gtsam)
+    X, L = symbols(gtsam)
     graph, values = build_graph(gtsam, problem, config, initial, ids, landmark_guess, initial_pose_std)
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(1e-8)
-    params.setAbsoluteErrorTol(1e-8)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    result = optimizer.optimize()
+    optimizer, result = levenberg_marquardt(gtsam, graph, values, max_iterations)
     poses = np.array([[p.x(), p.y(), p.theta()] for p in (result.atPose2(X(k)) for k in range(len(initial)))])
     landmarks = np.array([np.asarray(result.atPoint2(L(int(j))), float).reshape(2) for j in ids]).reshape(-1, 2)
     return InputsBatchResult(
@@ -309,7 +304,7 @@ def build_graph(gtsam, problem: InputsProblem, config: SlamConfig, poses: np.nda
                 landmarks: np.ndarray, initial_pose_std=(1e-3, 1e-3, 1e-4)) -> tuple:
     """The factor graph (prior at poses[0], between and bearing-range factors) and the values
     ``poses`` (T, 3), landmarks ``ids`` (M,) at ``landmarks`` (M, 2)."""
-    X, L = _symbols(gtsam)
+    X, L = symbols(gtsam)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     graph.add(_prior(gtsam, poses[0], initial_pose_std))
     for k, pose in enumerate(poses):
@@ -324,7 +319,7 @@ def build_graph(gtsam, problem: InputsProblem, config: SlamConfig, poses: np.nda
 
 
 def _prior(gtsam, pose, initial_pose_std):
-    return gtsam.PriorFactorPose2(_symbols(gtsam)[0](0), gtsam.Pose2(*pose),
+    return gtsam.PriorFactorPose2(symbols(gtsam)[0](0), gtsam.Pose2(*pose),
                                   gtsam.noiseModel.Diagonal.Sigmas(np.asarray(initial_pose_std, float)))
 
 
@@ -334,7 +329,7 @@ def incremental_guess(gtsam, problem: InputsProblem, config: SlamConfig, initial
     predicted from the previous one's current estimate and each new landmark placed at
     its first observation from there.  A long run's dead reckoning can be metres off,
     and Levenberg-Marquardt from it may stop in a local minimum; this follows the optimum."""
-    X, L = _symbols(gtsam)
+    X, L = symbols(gtsam)
     isam = gtsam.ISAM2()
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     graph.add(_prior(gtsam, initial_pose, initial_pose_std))
@@ -364,7 +359,7 @@ def incremental_guess(gtsam, problem: InputsProblem, config: SlamConfig, initial
 
 def _add_step(gtsam, graph, problem: InputsProblem, config: SlamConfig, k: int, by_pose: np.ndarray) -> None:
     """The between factor into pose k and the bearing-range factors of scan k."""
-    X, L = _symbols(gtsam)
+    X, L = symbols(gtsam)
     increment = problem.increments[k - 1]
     cov = tangent_covariance(increment, problem.motion_covariances[k - 1])
     graph.add(gtsam.BetweenFactorPose2(X(k - 1), X(k), gtsam.Pose2(*increment),

@@ -60,7 +60,6 @@ the GPS-derived pose has map = gps: convert with ``--no-map-to-gps`` for it.
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
 import time
 from dataclasses import dataclass
@@ -68,11 +67,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..bagio import clear_bag_directory, message_order, write_topics
 from ..cloud import OBSERVATION_FIELDS, build_message
 from ..core.models import motion
 from ..core.config import MotionConfig
 from ..quaternion import yaw_to_xyzw
-from ..progress import Progress
 from .beacons import extract_beacons, observation_columns
 from .datasets import (VEHICLE, CarPark, GpsTrack, LaserScans, OdometryStream, Vehicle,
                        VictoriaPark, load_car_park, load_victoria_park)
@@ -290,13 +289,7 @@ def message_schedule(streams: Streams) -> tuple[np.ndarray, list[str], np.ndarra
         per_topic[TOPIC_GT_LANDMARKS] = np.array([t0])
     if streams.scans is not None:
         per_topic[TOPIC_SCAN] = streams.scans.times
-    topics = list(per_topic)
-    stamps = np.concatenate([to_ns(per_topic[t]) for t in topics])
-    prio = np.concatenate([np.full(len(per_topic[t]), TOPIC_PRIORITY[t]) for t in topics])
-    index = np.concatenate([np.arange(len(per_topic[t])) for t in topics])
-    order = np.lexsort((index, prio, stamps))
-    names = sorted(TOPIC_PRIORITY, key=TOPIC_PRIORITY.get)
-    return stamps[order], [names[p] for p in prio[order]], index[order]
+    return message_order({t: to_ns(times) for t, times in per_topic.items()}, TOPIC_PRIORITY)
 
 
 # --------------------------------------------------------------------------- rosbags messages
@@ -419,47 +412,16 @@ def iter_messages(streams: Streams, typestore=None, map_to_gps=None):
         yield stamp, topic, MSGTYPES[topic], factory.build(topic, stamp, i)
 
 
-def latched_qos():
-    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
-                                    QosReliability, QosTime)
-    zero = QosTime(sec=0, nsec=0)
-    return [Qos(history=QosHistory.KEEP_LAST, depth=1, reliability=QosReliability.RELIABLE,
-                durability=QosDurability.TRANSIENT_LOCAL, deadline=zero, lifespan=zero,
-                liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=zero,
-                avoid_ros_namespace_conventions=False)]
-
-
 def write_bag(streams: Streams, output, storage: str = "mcap", progress: bool = True,
               overwrite: bool = False, stream=None, map_to_gps: bool = True) -> dict[str, int]:
     """Write the streams to a ROS 2 bag directory ``output``; returns messages per topic.
     ``map_to_gps``: add the static map -> gps transform (see the module docstring)."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
     output = Path(output)
-    if output.exists():
-        if not overwrite:
-            raise FileExistsError(f"{output} exists (use overwrite)")
-        if not (output / "metadata.yaml").exists() and any(output.iterdir()):
-            raise FileExistsError(f"{output} exists and does not look like a bag; not removing it")
-        shutil.rmtree(output)
-    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    clear_bag_directory(output, overwrite)
     ts = jazzy_typestore()
-    counts = {t: 0 for t in streams.message_counts()}
-    bar = Progress(sum(streams.message_counts().values()), f"{streams.name} -> {output.name}",
-                   stream=stream, enabled=progress)
-    with Writer(output, version=9, storage_plugin=plugin) as writer:
-        conns = {}
-        for topic in sorted(counts, key=TOPIC_PRIORITY.get):
-            qos = latched_qos() if topic in LATCHED_TOPICS else ()
-            conns[topic] = writer.add_connection(topic, MSGTYPES[topic], typestore=ts,
-                                                 offered_qos_profiles=qos)
-        gps_pose = gps_frame_in_map(streams) if map_to_gps else None
-        for stamp, topic, msgtype, msg in iter_messages(streams, ts, gps_pose):
-            writer.write(conns[topic], stamp, ts.serialize_cdr(msg, msgtype))
-            counts[topic] += 1
-            bar.update()
-    bar.close()
-    return counts
+    gps_pose = gps_frame_in_map(streams) if map_to_gps else None
+    return write_topics(output, iter_messages(streams, ts, gps_pose), streams.message_counts(), MSGTYPES,
+                        LATCHED_TOPICS, ts, storage, f"{streams.name} -> {output.name}", progress, stream)
 
 
 def convert(name: str, output, data_dir=None, storage: str = "mcap", progress: bool = True,

@@ -40,7 +40,6 @@ stamp are ordered static first, motion before observations (``TOPIC_PRIORITY``).
 """
 from __future__ import annotations
 
-import shutil
 import sys
 import time
 from dataclasses import dataclass
@@ -50,9 +49,11 @@ import numpy as np
 
 from ..cloud import OBSERVATION_FIELDS
 from ..kth.beacons import observation_columns
-from ..kth.convert import (GROUND_TRUTH_LANDMARK_FIELDS, DeadReckoning, MessageFactory, Observations,
-                           dir_size, latched_qos, jazzy_typestore, to_ns)
-from ..progress import Progress
+from ..bagio import clear_bag_directory, message_order, write_topics
+from ..kth.convert import MSGTYPES as KTH_MSGTYPES
+from ..kth.convert import (FRAME_BASE, FRAME_MAP, GROUND_TRUTH_LANDMARK_FIELDS, TOPIC_CONTROL, TOPIC_GT_LANDMARKS,
+                           TOPIC_GT_POSITION, TOPIC_ODOM, TOPIC_OBSERVATIONS, TOPIC_TF, TOPIC_TF_STATIC, DeadReckoning, MessageFactory, Observations, dir_size,
+                           jazzy_typestore, to_ns)
 from .dataset import DROP_REASONS, MrclamRun, load_mrclam
 
 #: Added to every dataset time (seconds) to make the stamps: no stamp is zero or negative.
@@ -61,25 +62,15 @@ _STAMP_OFFSET_NS = 1_000_000_000 * 1_000_000_000
 #: Every n-th ground-truth sample (50 Hz -> 10 Hz).
 GROUND_TRUTH_EVERY = 5
 
-TOPIC_TF_STATIC, TOPIC_TF, TOPIC_ODOM, TOPIC_CONTROL = "/tf_static", "/tf", "/odom", "/control"
-TOPIC_OBSERVATIONS = "/landmark_observations"
-TOPIC_GT_POSITION, TOPIC_GT_POSE, TOPIC_GT_LANDMARKS = "/ground_truth/position", "/ground_truth/pose", \
-    "/ground_truth/landmarks"
-
-MSGTYPES = {
-    TOPIC_TF_STATIC: "tf2_msgs/msg/TFMessage",
-    TOPIC_GT_LANDMARKS: "sensor_msgs/msg/PointCloud2",
-    TOPIC_CONTROL: "geometry_msgs/msg/TwistStamped",
-    TOPIC_ODOM: "nav_msgs/msg/Odometry",
-    TOPIC_TF: "tf2_msgs/msg/TFMessage",
-    TOPIC_GT_POSITION: "geometry_msgs/msg/PointStamped",
-    TOPIC_GT_POSE: "geometry_msgs/msg/PoseStamped",
-    TOPIC_OBSERVATIONS: "sensor_msgs/msg/PointCloud2",
-}
+TOPIC_GT_POSE = "/ground_truth/pose"
+# The KTH bags' topics and order (no /scan), with the full ground-truth pose after the position.
+_TOPICS = (TOPIC_TF_STATIC, TOPIC_GT_LANDMARKS, TOPIC_CONTROL, TOPIC_ODOM, TOPIC_TF, TOPIC_GT_POSITION)
+MSGTYPES = {**{t: KTH_MSGTYPES[t] for t in _TOPICS}, TOPIC_GT_POSE: "geometry_msgs/msg/PoseStamped",
+            TOPIC_OBSERVATIONS: KTH_MSGTYPES[TOPIC_OBSERVATIONS]}
 #: Order of messages sharing one stamp (static data first, motion before sensing).
 TOPIC_PRIORITY = {t: i for i, t in enumerate(MSGTYPES)}
 LATCHED_TOPICS = (TOPIC_TF_STATIC, TOPIC_GT_LANDMARKS)
-FRAME_MAP, FRAME_ODOM, FRAME_BASE, FRAME_CAMERA = "map", "odom", "base_link", "camera"
+FRAME_CAMERA = "camera"
 
 
 # --------------------------------------------------------------------------- pure layer
@@ -171,14 +162,7 @@ def to_stamp_ns(t) -> np.ndarray:
 def message_schedule(streams: MrclamStreams) -> tuple[np.ndarray, list[str], np.ndarray]:
     """Time order of all messages: (stamps_ns with the offset, topics, index within topic),
     sorted by stamp, then TOPIC_PRIORITY, then index."""
-    per_topic = streams.per_topic_times()
-    topics = list(per_topic)
-    stamps = np.concatenate([to_stamp_ns(per_topic[t]) for t in topics])
-    prio = np.concatenate([np.full(len(per_topic[t]), TOPIC_PRIORITY[t]) for t in topics])
-    index = np.concatenate([np.arange(len(per_topic[t])) for t in topics])
-    order = np.lexsort((index, prio, stamps))
-    names = sorted(TOPIC_PRIORITY, key=TOPIC_PRIORITY.get)
-    return stamps[order], [names[p] for p in prio[order]], index[order]
+    return message_order({t: to_stamp_ns(times) for t, times in streams.per_topic_times().items()}, TOPIC_PRIORITY)
 
 
 # --------------------------------------------------------------------------- rosbags messages
@@ -241,41 +225,16 @@ def iter_messages(streams: MrclamStreams, typestore=None):
         yield stamp, topic, MSGTYPES[topic], factory.build(topic, stamp, i)
 
 
-def _clear_output(output: Path, overwrite: bool) -> None:
-    """Refuse an existing ``output`` unless ``overwrite`` and it is a bag (or empty); then remove it."""
-    if not output.exists():
-        return
-    if not overwrite:
-        raise FileExistsError(f"{output} exists (use overwrite)")
-    if not (output / "metadata.yaml").exists() and any(output.iterdir()):
-        raise FileExistsError(f"{output} exists and does not look like a bag; not removing it")
-    shutil.rmtree(output)
-
-
 def write_streams(streams: MrclamStreams, output, storage: str = "mcap", overwrite: bool = False,
                   progress: bool = True, stream=None) -> dict[str, int]:
     """Write the streams to a ROS 2 bag directory ``output``; returns messages per topic."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
     output = Path(output)
     if storage not in ("mcap", "sqlite3"):
         raise ValueError(f"storage must be mcap or sqlite3, got {storage!r}")
-    _clear_output(output, overwrite)
-    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    clear_bag_directory(output, overwrite)
     ts = jazzy_typestore()
-    counts = {t: 0 for t in streams.message_counts()}
-    bar = Progress(sum(streams.message_counts().values()), f"{streams.name} -> {output.name}",
-                   stream=stream, enabled=progress)
-    with Writer(output, version=9, storage_plugin=plugin) as writer:
-        conns = {topic: writer.add_connection(topic, MSGTYPES[topic], typestore=ts,
-                                              offered_qos_profiles=latched_qos() if topic in LATCHED_TOPICS else ())
-                 for topic in sorted(counts, key=TOPIC_PRIORITY.get)}
-        for stamp, topic, msgtype, msg in iter_messages(streams, ts):
-            writer.write(conns[topic], stamp, ts.serialize_cdr(msg, msgtype))
-            counts[topic] += 1
-            bar.update()
-    bar.close()
-    return counts
+    return write_topics(output, iter_messages(streams, ts), streams.message_counts(), MSGTYPES, LATCHED_TOPICS,
+                        ts, storage, f"{streams.name} -> {output.name}", progress, stream)
 
 
 def write_mrclam_bag(run: MrclamRun, output, storage: str = "mcap", overwrite: bool = False,
