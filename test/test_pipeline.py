@@ -76,7 +76,8 @@ def test_watermark_waits_for_every_live_stream_and_empty_clouds_advance_it():
 
 
 def test_silent_stream_stops_holding_and_a_lagging_stream_is_still_in_time():
-    """A detector delivering 60 ms late, silent for longer than ``silence``, is not dropped when it resumes."""
+    """A detector delivering 60 ms late, silent for longer than ``silence``, is not dropped when it
+    resumes, even 90 ms late (the executor's order on a loaded machine adds to the latency)."""
     seq = Sequencer((ODOMETRY, OBSERVATIONS), silence=1.0)
     wall = lambda stamp: stamp + 0.001          # noqa: E731  odometry arrives at once
     out = []
@@ -88,11 +89,11 @@ def test_silent_stream_stops_holding_and_a_lagging_stream_is_still_in_time():
             out += seq.push(Input(t - 0.06, OBSERVATIONS, payload=obs(5.0)), wall(t))
         out += seq.release(wall(t))
     assert out and out[-1].stamp > 3.5          # the silent stream stopped holding odometry back
-    for k in range(200, 240):                   # the detector resumes, still 60 ms late
+    for k in range(200, 240):                   # the detector resumes, 90 ms late
         t = 0.025 * k
         out += seq.push(Input(t, ODOMETRY), wall(t))
         if k % 8 == 0:
-            out += seq.push(Input(t - 0.06, OBSERVATIONS, payload=obs(5.0)), wall(t))
+            out += seq.push(Input(t - 0.09, OBSERVATIONS, payload=obs(5.0)), wall(t))
     out += seq.flush()
     assert not seq.drops, seq.drops
     assert sum(i.kind == OBSERVATIONS for i in out) == 5 + 5

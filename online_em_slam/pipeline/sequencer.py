@@ -8,9 +8,12 @@ estimator the identical sequence.  Every message of a stream refreshes its
 liveness and advances its watermark, including empty clouds and messages that
 are dropped later, so a stream that reports "nothing seen" never holds the
 others back.  A stream silent for ``silence`` wall seconds stops holding the
-others back; they then run ``lag`` stamp seconds behind the newest input, where
-``lag`` is how far behind the others that stream used to arrive, so a lagging
-detector that resumes after a silence is not dropped as late.
+others back; they then run ``SILENT_LAG_FACTOR * lag`` stamp seconds behind the
+newest input, where ``lag`` is how far behind the others that stream used to
+arrive, so a lagging detector that resumes after a silence is not dropped as
+late.  The remembered lag is a sample, not a bound: the executor's order and a
+loaded machine add about as much again (a 60 ms detector was seen arriving
+100 ms behind the odometry), hence the factor.
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ from collections import Counter, deque
 from .inputs import MOTION_KINDS, Input
 
 LAG_MEMORY = 32          # arrivals over which a stream's lag behind the others is remembered
+SILENT_LAG_FACTOR = 2.0  # a silent stream is waited for twice its largest remembered lag
 
 
 class Sequencer:
@@ -103,7 +107,7 @@ class Sequencer:
             return math.inf                      # every stream stopped: nothing left to wait for
         if silent:
             newest = max(self._newest.values())
-            marks += [newest - max(self._lags[k], default=0.0) for k in silent]
+            marks += [newest - SILENT_LAG_FACTOR * max(self._lags[k], default=0.0) for k in silent]
         return min(marks)
 
     def release(self, wall: float, limit: float | None = None) -> list[Input]:
