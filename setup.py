@@ -45,7 +45,7 @@ setup(
                 "ros-jazzy-sensor-msgs", "ros-jazzy-visualization-msgs", "ros-jazzy-diagnostic-msgs",
                 "ros-jazzy-std-srvs", "ros-jazzy-rosgraph-msgs"],
         "benchmark": ["gtsam>=4.2"],
-        "test": ["pytest>=7"],
+        "test": ["pytest>=7", "pytest-xdist>=3"],
     },
     entry_points={
         "console_scripts": [

@@ -8,6 +8,23 @@ os.environ.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
 
 import pytest  # noqa: E402
 
+# Tests that run live nodes against the wall clock (in this process or in others).  `make test`
+# runs them on their own after the others, which it runs on two workers: a live node's timing
+# tolerances hold on a machine that is not also filtering in another process.
+LIVE_MODULES = {"test_node", "test_node_inputs", "test_node_user", "test_fuzz_node",
+                "test_reliability_node", "test_replay", "test_replay_options", "test_tools",
+                "test_tf_tree", "test_tf_sensor_pose", "test_tf_wheels"}
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "live: runs live ROS nodes against the wall clock")
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.module.__name__ in LIVE_MODULES or "ros" in item.fixturenames:
+            item.add_marker(pytest.mark.live)
+
 
 @pytest.fixture
 def no_discovery(monkeypatch):
