@@ -1,8 +1,8 @@
 """Offline runs: a bag straight into an estimator (no DDS), deterministic for a seed.
 
 The bag is read with rosbags (no rclpy) and streamed, one message at a time,
-through the node's own input path (:mod:`online_em_slam.pipeline`: stamp checks,
-the (stamp, kind) ordered merge of the streams within the node's ``input_delay``
+through the node's own input pipeline (:mod:`online_em_slam.pipeline`: stamp checks,
+the (stamp, tie rule) ordered merge of the streams within the node's ``input_delay``
 window, the feeder), so the estimator sees the identical sequence of inputs as
 the node and memory does not grow with the bag.  Observation clouds are read by the node's reader
 (:func:`online_em_slam.cloud.observations_from_message`) and odometry
@@ -25,7 +25,7 @@ from . import plots, report
 from .cloud import CloudFormatError, decode_message, observations_from_message
 from .core.config import SlamConfig
 from .evaluation import DEFAULT_MATCH_GATE, InitialPose, initial_pose_from_gps
-from .pipeline import CONTROL, OBSERVATIONS, ODOMETRY, Feeder, InputPath
+from .pipeline import CONTROL, OBSERVATIONS, ODOMETRY, InputPipeline
 from .progress import Progress
 from .quaternion import odometry_yaw
 from .tum import write_run_tum
@@ -272,13 +272,8 @@ class RunResult:
     n_observation_messages: int
 
 
-def motion_streams(motion_source: str) -> tuple[int, ...]:
-    """The input streams that are merged: the motion input that drives the estimator and the observations."""
-    return (ODOMETRY if motion_source == "odom" else CONTROL, OBSERVATIONS)
-
-
 def feed(estimator, inputs: BagInputs) -> RunResult:
-    """Stream the bag's inputs through the node's input path; record the pose after every observation message.
+    """Stream the bag's inputs through the node's input pipeline; record the pose after every observation message.
 
     The bag's log time stands for the node's wall clock (it is when the inputs
     arrived): the merge waits for a stream only while it delivers within
@@ -286,13 +281,19 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
     reordering are bounded by that window (and by how far a live stream's stamps
     lag), not by the bag.  An input that arrives after its place in the order
     was released is counted (``out_of_order``, as in the node); the end of the
-    bag releases the rest.  ``wall_time`` is the time spent in the input path and
+    bag releases the rest.  ``wall_time`` is the time spent in the pipeline and
     the estimator (reading the bag excluded).
     """
-    path = InputPath(motion_streams(inputs.motion_source), silence=inputs.input_delay,
-                     jump_threshold=inputs.jump_threshold, restart_on_jump_back=False)
-    feeder = Feeder(estimator, inputs.motion_source, path.drops)
     durations, rows, refused = [], [], Counter()
+
+    def record(item, fed) -> None:
+        if fed.report is not None:
+            durations.append(fed.report.duration)
+        if fed.trajectory_point is not None:
+            rows.append(fed.trajectory_point)
+
+    pipeline = InputPipeline(estimator, inputs.motion_source, inputs.input_delay, inputs.jump_threshold,
+                             restart_on_jump_back=False, on_applied=record)
     first = last = None
     n_obs_msgs, busy = 0, 0.0
     bar = Progress(len(inputs.events), "run", enabled=sys.stderr.isatty())   # a terminal only, not logs
@@ -302,27 +303,17 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
         last = stamp if last is None or stamp > last else last
         n_obs_msgs += kind == OBSERVATIONS
         started = time.perf_counter()
-        for item in path.push(kind, stamp, payload, log_time).released:
-            _feed_one(feeder, item, durations, rows)
+        pipeline.push(kind, stamp, payload, log_time)
         busy += time.perf_counter() - started
     bar.close()
     started = time.perf_counter()
-    for item in path.flush():
-        _feed_one(feeder, item, durations, rows)
+    pipeline.flush()
     busy += time.perf_counter() - started
     inputs.refused = refused
-    skipped = {k: int(v) for k, v in path.drops.items() if v}
+    skipped = {k: int(v) for k, v in pipeline.drops.items() if v}
     skipped.update({k: int(v) for k, v in refused.items() if v})
     return RunResult("", np.asarray(rows, dtype=float).reshape(-1, 4), estimator.landmarks(), durations, busy,
                      (last - first) if first is not None else 0.0, dict(estimator.drops), skipped, n_obs_msgs)
-
-
-def _feed_one(feeder: Feeder, item, durations: list, rows: list) -> None:
-    fed = feeder.apply(item)
-    if fed.report is not None:
-        durations.append(fed.report.duration)
-    if fed.trajectory_point is not None:
-        rows.append(fed.trajectory_point)
 
 
 def run_one(inputs: BagInputs, config: SlamConfig, method: str, initial: InitialPose, output: Path,

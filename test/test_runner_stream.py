@@ -14,6 +14,7 @@ pytest.importorskip("rosbags")
 from online_em_slam import runner  # noqa: E402
 from online_em_slam.paramfile import config_from_params  # noqa: E402
 from online_em_slam.pipeline import OBSERVATIONS, Feeder, Input  # noqa: E402
+from online_em_slam.pipeline import input_pipeline  # noqa: E402
 
 T0 = 100.0
 CONTROL_HZ = 40
@@ -75,8 +76,8 @@ def _setup():
     return config, settings
 
 
-class _Spy(runner.InputPath):
-    """The runner's input path, noting the most inputs it ever held."""
+class _Spy(input_pipeline.InputPath):
+    """The input path of the runner's pipeline, noting the most inputs it ever held."""
 
     held = 0
 
@@ -89,7 +90,7 @@ class _Spy(runner.InputPath):
 def test_the_runner_holds_at_most_the_reorder_window_not_the_bag(bag, monkeypatch):
     path, n_messages = bag
     config, settings = _setup()
-    monkeypatch.setattr(runner, "InputPath", _Spy)
+    monkeypatch.setattr(input_pipeline, "InputPath", _Spy)
     _Spy.held = 0
     inputs = runner.read_inputs(path, settings)
     assert len(inputs.events) == n_messages
@@ -109,7 +110,7 @@ def test_an_input_later_than_the_window_is_counted_and_the_rest_is_the_global_or
     # The cloud logged 3 s after its stamp is late (its place was released): counted, not used
     # (and the detector's 5 s silence before it is counted as lost scans, as in the node).
     assert result.skipped == {"out_of_order": 1, "observations_lost": 25}, result.skipped
-    # Everything else is fed exactly as the global (stamp, kind) sort of the bag.
+    # Everything else is fed exactly as the global (stamp, tie rule) sort of the bag.
     events = [e for e in inputs.events if not (e[0] == OBSERVATIONS and e[1] == LATE[0])]
     items = sorted(Input(stamp, kind, seq, payload) for seq, (kind, stamp, payload, _) in enumerate(events))
     feeder = Feeder(runner.make_estimator("online_em", config, (0.0, 0.0, 0.0)), "control")
