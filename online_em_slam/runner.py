@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from . import plots, report
+from .bagio import absolute_topic
 from .cloud import CloudFormatError, decode_message, observations_from_message
 from .core.config import SlamConfig
 from .evaluation import DEFAULT_MATCH_GATE, InitialPose, initial_pose_from_gps
@@ -34,10 +35,6 @@ METHODS = ("online_em", "ekf_slam", "fastslam2", "marginal_slam")
 GT_POSITION_TOPIC = "/ground_truth/position"
 GT_POSE_TOPIC = "/ground_truth/pose"          # full base pose (motion capture), where a data set has it
 GT_LANDMARKS_TOPIC = "/ground_truth/landmarks"
-
-
-def _absolute(topic: str) -> str:
-    return topic if topic.startswith("/") else "/" + topic
 
 
 # --------------------------------------------------------------------------- bag -> inputs
@@ -94,7 +91,7 @@ class BagEvents:
     def stream(self, refused: Counter):
         from .bagio import read_bag_timed
 
-        reader = _BagReader(self.settings, keep_poses=False)
+        reader = BagReader(self.settings, keep_poses=False)
         reader.refused = refused
         for topic, stamp, msg, log_time in read_bag_timed(self.bag, reader.input_topics):
             reader.handlers[topic](stamp, msg)
@@ -103,7 +100,7 @@ class BagEvents:
                 yield kind, stamp, payload, log_time
 
 
-class _BagReader:
+class BagReader:
     """A bag's messages to inputs, one handler per topic: motion and observation messages
     become events (kind, stamp, payload) queued in ``events`` until taken; odometry poses
     (``keep_poses``), GPS and the surveyed landmarks are collected."""
@@ -111,13 +108,13 @@ class _BagReader:
     def __init__(self, settings, keep_poses: bool = True):
         self.motion_source = settings.motion_source
         self.keep_poses = keep_poses
-        odom, observations = _absolute(settings.odom_topic), _absolute(settings.observations_topic)
+        odom, observations = absolute_topic(settings.odom_topic), absolute_topic(settings.observations_topic)
         self.handlers = {observations: self.observations, odom: self.odometry,
                          GT_POSITION_TOPIC: self.gps, GT_POSE_TOPIC: self.ground_truth_pose,
                          GT_LANDMARKS_TOPIC: self.surveyed_landmarks}
         self.event_topics = {observations}
         if settings.motion_source == "control":
-            control = _absolute(settings.control_topic)
+            control = absolute_topic(settings.control_topic)
             self.handlers[control] = self.control
             self.event_topics.add(control)
         else:
@@ -176,11 +173,11 @@ def read_inputs(bag, settings) -> BagInputs:
     message counts and the first input's stamp; the inputs themselves stream from ``events``."""
     from .bagio import read_bag_timed
 
-    reader = _BagReader(settings)
+    reader = BagReader(settings)
     start = None
 
     def decode(topic: str) -> bool:          # input clouds and controls: only the first is decoded
-        return start is None or topic not in reader.event_topics or topic == _absolute(settings.odom_topic)
+        return start is None or topic not in reader.event_topics or topic == absolute_topic(settings.odom_topic)
 
     for topic, stamp, msg, _ in read_bag_timed(bag, set(reader.handlers), decode):
         reader.counts[topic] += 1

@@ -21,10 +21,10 @@ pytestmark = pytest.mark.usefixtures("no_discovery")     # conftest.py
 
 def _tf2_msgs_importable() -> bool:
     try:
-        from tf2_msgs.msg import TFMessage  # noqa: F401
+        from tf2_msgs.msg import TFMessage
     except ImportError:
         return False
-    return True
+    return TFMessage is not None
 
 
 def test_tf2_msgs_source_package_is_hidden_from_colcon_and_rosdep():
