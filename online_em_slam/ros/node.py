@@ -1,12 +1,9 @@
 """ROS 2 node: landmark SLAM by particle online EM.
 
 Inputs
-  ``odom``                   nav_msgs/Odometry: motion input when motion_source = odom,
-                             and always the odom -> base pose for map -> odom.
-  ``control``                geometry_msgs/TwistStamped (motion_source = control):
-                             linear.x speed, angular.z steering angle or yaw rate.
-  ``landmark_observations``  sensor_msgs/PointCloud2 with fields range, bearing
-                             [, id (-1 unknown), range_std, bearing_std].
+  ``odom`` (nav_msgs/Odometry), ``control`` (geometry_msgs/TwistStamped, with
+  motion_source = control), ``landmark_observations`` (sensor_msgs/PointCloud2),
+  ``/initialpose``; the fields each one needs are in :mod:`.inputs`.
 Outputs
   ``~/pose`` ``~/path`` ``~/particles`` ``~/landmarks`` ``~/landmark_markers``,
   map -> odom (tf2_ros, else tf2_msgs/TFMessage on /tf, else ~/map_to_odom) and
