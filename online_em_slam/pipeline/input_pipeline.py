@@ -77,8 +77,13 @@ class InputPipeline:
     def __len__(self) -> int:
         return len(self.path)
 
-    def current_load(self) -> float:
-        return self.load.load(self.clock())
+    def current_load(self, now: float | None = None) -> float:
+        """Share of the last second spent handling inputs, at ``now`` (clock time; default: the clock)."""
+        return self.load.load(self.clock() if now is None else now)
+
+    def set_input_delay(self, seconds: float) -> None:
+        """How long the merge waits for a silent stream (the node's ``input_delay``, changed at run time)."""
+        self.path.sequencer.silence = float(seconds)
 
     # ------------------------------------------------------------------ inputs
     def push(self, kind: int, stamp: float, payload, wall: float) -> None:

@@ -76,7 +76,7 @@ class Diagnostics:
                 "observation_updates": self.updates,
                 "inputs": self.inputs,
                 "queued_inputs": len(inputs.pipeline),
-                "load": inputs.pipeline.load.load(now),
+                "load": inputs.pipeline.current_load(now),
                 "load_max": inputs.pipeline.max_load,
                 "paused": node.paused,
                 "resets": self.resets,

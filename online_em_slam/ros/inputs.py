@@ -73,7 +73,7 @@ class Inputs:
 
     def apply_settings(self, settings) -> None:
         """Parameters changed at run time: the merge window and shedding follow."""
-        self.pipeline.path.sequencer.silence = settings.input_delay
+        self.pipeline.set_input_delay(settings.input_delay)
         self.pipeline.shedding = self.sheds(settings)
 
     def _events(self, topic: str) -> SubscriptionEventCallbacks:
