@@ -82,6 +82,7 @@ class OnlineEmSlamNode(Node):
         self.add_post_set_parameters_callback(self._after_set_parameters)
 
     def _make_estimator(self) -> None:
+        """The estimator and the state the parts share (lock, drop counters, pause)."""
         self.lock = threading.RLock()
         self._slam = OnlineEMSlam(self.config, initial_pose=self.settings.initial_pose)
         self._pending_config = None
@@ -90,16 +91,20 @@ class OnlineEmSlamNode(Node):
         self.paused = False
 
     def _make_outputs(self) -> None:
+        """/diagnostics, then the publishers and map -> odom (they count updates into the diagnostics)."""
         self.diagnostics = Diagnostics(self)
         self.outputs = Outputs(self, self.diagnostics)
 
     def _make_inputs(self) -> None:
+        """Subscriptions and the input pipeline, which calls the outputs back."""
         self.inputs = Inputs(self, self.outputs, self.diagnostics)
 
     def _make_services(self) -> None:
+        """Services and /initialpose (``commands``: rclpy's Node already has a ``services`` property)."""
         self.commands = Commands(self)
 
     def _make_timers(self) -> None:
+        """Housekeeping, map, diagnostics and map -> odom timers; the /clock jump callback."""
         s = self.settings
         # Timers run on the steady clock: they rate-limit work, independent of sim time.
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
