@@ -49,6 +49,20 @@ class BagError(ValueError):
     """A bag that cannot be read (not a bag, truncated, corrupt): names the bag and the problem."""
 
 
+def is_latched(conn) -> bool:
+    """A bag connection offered as latched (TRANSIENT_LOCAL), from its QoS metadata."""
+    from rosbags.interfaces import QosDurability
+    profiles = getattr(conn.ext, "offered_qos_profiles", None) or []
+    if isinstance(profiles, str):   # older metadata kept as YAML text
+        return "durability: 1" in profiles or "transient_local" in profiles.lower()
+    return any(getattr(p, "durability", None) == QosDurability.TRANSIENT_LOCAL for p in profiles)
+
+
+def absolute_topic(topic: str) -> str:
+    """``topic`` with a leading slash, as bag connections name topics."""
+    return topic if topic.startswith("/") else "/" + topic
+
+
 def latched_qos():
     """The offered QoS of a latched topic (TRANSIENT_LOCAL, depth 1), as /tf_static's."""
     from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,

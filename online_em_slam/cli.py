@@ -7,7 +7,7 @@
 
 ``run`` reads the bag (rosbags, no rclpy) and feeds the estimator through the
 node's own input path (:mod:`online_em_slam.runner`, with
-:mod:`online_em_slam.pipeline`: stamp checks, the (stamp, kind) ordered merge of
+:mod:`online_em_slam.pipeline`: stamp checks, the (stamp, tie rule) ordered merge of
 the streams, the feeder), so the estimator sees the identical sequence of
 inputs as the node: the control topic ->
 ``add_control`` (``motion_source: control``) or the odometry topic ->

@@ -33,16 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .bagio import absolute_topic
 from .evaluation import (DEFAULT_MATCH_GATE, initial_pose_from_gps, landmark_metrics, sensor_points,
                          trajectory_metrics)
 from .quaternion import quaternion_to_yaw
 
 GT_POSITION_TOPIC = "/ground_truth/position"
 GT_LANDMARKS_TOPIC = "/ground_truth/landmarks"
-
-
-def _absolute(topic: str) -> str:
-    return "/" + topic.lstrip("/")
 
 
 # --------------------------------------------------------------------------- reading
@@ -92,7 +89,7 @@ def read_truth(bag, settings) -> Truth:
     from .bagio import read_bag
     from .cloud import decode_message
 
-    odom_topic, control_topic = _absolute(settings.odom_topic), _absolute(settings.control_topic)
+    odom_topic, control_topic = absolute_topic(settings.odom_topic), absolute_topic(settings.control_topic)
     gps_t, gps, odom_t, odom, landmarks, offset, start = [], [], [], [], None, None, None
     topics = [GT_POSITION_TOPIC, GT_LANDMARKS_TOPIC, odom_topic, control_topic, "/tf_static"]
     for topic, stamp, msg in read_bag(bag, topics):

@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 from . import replay_options
+from .bagio import is_latched
 
 
 def message_class(msgtype: str):
@@ -54,14 +55,6 @@ def parse_wait(specs) -> dict[str, int]:
         except ValueError:
             raise argparse.ArgumentTypeError(f"--wait-subscribers expects TOPIC:COUNT, got {spec!r}") from None
     return out
-
-
-def _is_latched(conn) -> bool:
-    from rosbags.interfaces import QosDurability
-    profiles = getattr(conn.ext, "offered_qos_profiles", None) or []
-    if isinstance(profiles, str):   # older metadata kept as YAML text
-        return "durability: 1" in profiles or "transient_local" in profiles.lower()
-    return any(getattr(p, "durability", None) == QosDurability.TRANSIENT_LOCAL for p in profiles)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -101,7 +94,7 @@ def _publishers(node, reader, args, log):
             skipped[conn.topic] = f"{conn.msgtype}: {exc}"
             log(f"replay: skipping {conn.topic} ({conn.msgtype} not importable)")
             continue
-        latched = _is_latched(conn) or conn.topic == "/tf_static"
+        latched = is_latched(conn) or conn.topic == "/tf_static"
         qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=100000, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
         publishers[conn.topic] = node.create_publisher(cls, replay_options.remap(args, conn.topic), qos)

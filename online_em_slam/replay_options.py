@@ -147,9 +147,9 @@ def _passes(args, reader, conns):
 
 def _latched_before(reader, conns, start_ns: int):
     """The latched topics' messages before ``start_ns`` (sent first with --start-offset)."""
-    from .replay import _is_latched
+    from .bagio import is_latched
 
-    latched = [c for c in conns if _is_latched(c) or c.topic == "/tf_static"]
+    latched = [c for c in conns if is_latched(c) or c.topic == "/tf_static"]
     if not latched or start_ns <= reader.start_time:
         return []
     return list(reader.messages(connections=latched, stop=start_ns))

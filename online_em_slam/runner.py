@@ -1,8 +1,8 @@
 """Offline runs: a bag straight into an estimator (no DDS), deterministic for a seed.
 
 The bag is read with rosbags (no rclpy) and streamed, one message at a time,
-through the node's own input path (:mod:`online_em_slam.pipeline`: stamp checks,
-the (stamp, kind) ordered merge of the streams within the node's ``input_delay``
+through the node's own input pipeline (:mod:`online_em_slam.pipeline`: stamp checks,
+the (stamp, tie rule) ordered merge of the streams within the node's ``input_delay``
 window, the feeder), so the estimator sees the identical sequence of inputs as
 the node and memory does not grow with the bag.  Observation clouds are read by the node's reader
 (:func:`online_em_slam.cloud.observations_from_message`) and odometry
@@ -22,10 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from . import plots, report
+from .bagio import absolute_topic
 from .cloud import CloudFormatError, decode_message, observations_from_message
 from .core.config import SlamConfig
 from .evaluation import DEFAULT_MATCH_GATE, InitialPose, initial_pose_from_gps
-from .pipeline import CONTROL, OBSERVATIONS, ODOMETRY, Feeder, InputPath
+from .pipeline import CONTROL, OBSERVATIONS, ODOMETRY, InputPipeline
 from .progress import Progress
 from .quaternion import odometry_yaw
 from .tum import write_run_tum
@@ -34,10 +35,6 @@ METHODS = ("online_em", "ekf_slam", "fastslam2", "marginal_slam")
 GT_POSITION_TOPIC = "/ground_truth/position"
 GT_POSE_TOPIC = "/ground_truth/pose"          # full base pose (motion capture), where a data set has it
 GT_LANDMARKS_TOPIC = "/ground_truth/landmarks"
-
-
-def _absolute(topic: str) -> str:
-    return topic if topic.startswith("/") else "/" + topic
 
 
 # --------------------------------------------------------------------------- bag -> inputs
@@ -94,7 +91,7 @@ class BagEvents:
     def stream(self, refused: Counter):
         from .bagio import read_bag_timed
 
-        reader = _BagReader(self.settings, keep_poses=False)
+        reader = BagReader(self.settings, keep_poses=False)
         reader.refused = refused
         for topic, stamp, msg, log_time in read_bag_timed(self.bag, reader.input_topics):
             reader.handlers[topic](stamp, msg)
@@ -103,7 +100,7 @@ class BagEvents:
                 yield kind, stamp, payload, log_time
 
 
-class _BagReader:
+class BagReader:
     """A bag's messages to inputs, one handler per topic: motion and observation messages
     become events (kind, stamp, payload) queued in ``events`` until taken; odometry poses
     (``keep_poses``), GPS and the surveyed landmarks are collected."""
@@ -111,13 +108,13 @@ class _BagReader:
     def __init__(self, settings, keep_poses: bool = True):
         self.motion_source = settings.motion_source
         self.keep_poses = keep_poses
-        odom, observations = _absolute(settings.odom_topic), _absolute(settings.observations_topic)
+        odom, observations = absolute_topic(settings.odom_topic), absolute_topic(settings.observations_topic)
         self.handlers = {observations: self.observations, odom: self.odometry,
                          GT_POSITION_TOPIC: self.gps, GT_POSE_TOPIC: self.ground_truth_pose,
                          GT_LANDMARKS_TOPIC: self.surveyed_landmarks}
         self.event_topics = {observations}
         if settings.motion_source == "control":
-            control = _absolute(settings.control_topic)
+            control = absolute_topic(settings.control_topic)
             self.handlers[control] = self.control
             self.event_topics.add(control)
         else:
@@ -176,11 +173,11 @@ def read_inputs(bag, settings) -> BagInputs:
     message counts and the first input's stamp; the inputs themselves stream from ``events``."""
     from .bagio import read_bag_timed
 
-    reader = _BagReader(settings)
+    reader = BagReader(settings)
     start = None
 
     def decode(topic: str) -> bool:          # input clouds and controls: only the first is decoded
-        return start is None or topic not in reader.event_topics or topic == _absolute(settings.odom_topic)
+        return start is None or topic not in reader.event_topics or topic == absolute_topic(settings.odom_topic)
 
     for topic, stamp, msg, _ in read_bag_timed(bag, set(reader.handlers), decode):
         reader.counts[topic] += 1
@@ -272,13 +269,8 @@ class RunResult:
     n_observation_messages: int
 
 
-def motion_streams(motion_source: str) -> tuple[int, ...]:
-    """The input streams that are merged: the motion input that drives the estimator and the observations."""
-    return (ODOMETRY if motion_source == "odom" else CONTROL, OBSERVATIONS)
-
-
 def feed(estimator, inputs: BagInputs) -> RunResult:
-    """Stream the bag's inputs through the node's input path; record the pose after every observation message.
+    """Stream the bag's inputs through the node's input pipeline; record the pose after every observation message.
 
     The bag's log time stands for the node's wall clock (it is when the inputs
     arrived): the merge waits for a stream only while it delivers within
@@ -286,13 +278,19 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
     reordering are bounded by that window (and by how far a live stream's stamps
     lag), not by the bag.  An input that arrives after its place in the order
     was released is counted (``out_of_order``, as in the node); the end of the
-    bag releases the rest.  ``wall_time`` is the time spent in the input path and
+    bag releases the rest.  ``wall_time`` is the time spent in the pipeline and
     the estimator (reading the bag excluded).
     """
-    path = InputPath(motion_streams(inputs.motion_source), silence=inputs.input_delay,
-                     jump_threshold=inputs.jump_threshold, restart_on_jump_back=False)
-    feeder = Feeder(estimator, inputs.motion_source, path.drops)
     durations, rows, refused = [], [], Counter()
+
+    def record(item, fed) -> None:
+        if fed.report is not None:
+            durations.append(fed.report.duration)
+        if fed.trajectory_point is not None:
+            rows.append(fed.trajectory_point)
+
+    pipeline = InputPipeline(estimator, inputs.motion_source, inputs.input_delay, inputs.jump_threshold,
+                             restart_on_jump_back=False, on_applied=record)
     first = last = None
     n_obs_msgs, busy = 0, 0.0
     bar = Progress(len(inputs.events), "run", enabled=sys.stderr.isatty())   # a terminal only, not logs
@@ -302,27 +300,17 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
         last = stamp if last is None or stamp > last else last
         n_obs_msgs += kind == OBSERVATIONS
         started = time.perf_counter()
-        for item in path.push(kind, stamp, payload, log_time).released:
-            _feed_one(feeder, item, durations, rows)
+        pipeline.push(kind, stamp, payload, log_time)
         busy += time.perf_counter() - started
     bar.close()
     started = time.perf_counter()
-    for item in path.flush():
-        _feed_one(feeder, item, durations, rows)
+    pipeline.flush()
     busy += time.perf_counter() - started
     inputs.refused = refused
-    skipped = {k: int(v) for k, v in path.drops.items() if v}
+    skipped = {k: int(v) for k, v in pipeline.drops.items() if v}
     skipped.update({k: int(v) for k, v in refused.items() if v})
     return RunResult("", np.asarray(rows, dtype=float).reshape(-1, 4), estimator.landmarks(), durations, busy,
                      (last - first) if first is not None else 0.0, dict(estimator.drops), skipped, n_obs_msgs)
-
-
-def _feed_one(feeder: Feeder, item, durations: list, rows: list) -> None:
-    fed = feeder.apply(item)
-    if fed.report is not None:
-        durations.append(fed.report.duration)
-    if fed.trajectory_point is not None:
-        rows.append(fed.trajectory_point)
 
 
 def run_one(inputs: BagInputs, config: SlamConfig, method: str, initial: InitialPose, output: Path,

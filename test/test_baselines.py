@@ -154,7 +154,7 @@ def test_fastslam2_resamples_and_reports_ess():
 
 
 def test_gtsam_batch_is_the_ml_reference(runs):
-    gtsam = pytest.importorskip("gtsam")  # noqa: F841  optional benchmark dependency
+    pytest.importorskip("gtsam")          # optional benchmark dependency
     from online_em_slam.baselines.gtsam_batch import batch_estimate
 
     rmse = []

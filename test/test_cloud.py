@@ -73,10 +73,10 @@ def test_runner_reads_observations_with_the_node_checks():
     """The offline runner counts refused observations (runner_skipped) as the node counts them."""
     from std_msgs.msg import Header
 
-    from online_em_slam.runner import _BagReader
+    from online_em_slam.runner import BagReader
     settings = SimpleNamespace(motion_source="control", observations_topic="obs", odom_topic="odom",
                                control_topic="control")
-    reader = _BagReader(settings)
+    reader = BagReader(settings)
     cloud_type, field_type = _rclpy_types()
     good = build_message(cloud_type, field_type, Header(), {"range": np.array([5.0, 5.0]),
                                                             "bearing": np.zeros(2), "id": np.array([1, -7])},

@@ -203,7 +203,7 @@ def test_fuzz_every_malformed_class_against_one_live_node(ros, motion_source):
                for m in ros.received["pose"])
     assert all(map(finite_map, ros.received["landmarks"]))
     transforms = ros.received["map_to_odom"]
-    assert transforms and all(map(finite_transform, transforms)) or node._tf.kind.startswith("tf2")
+    assert transforms and all(map(finite_transform, transforms)) or node.outputs.transform.kind.startswith("tf2")
     # The map from before the garbage is intact, and the normal data after it still refine it.
     table = landmark_table(ros.received["landmarks"][-1])
     assert ros.spin_until(lambda: int(ros.diagnostics().get("resets", -1)) == 0, 3.0)

@@ -82,7 +82,7 @@ class Harness:
     def subscribe_map_to_odom(self) -> None:
         """received["map_to_odom"]: map -> odom where the node sends it, /tf when tf2_ros or
         tf2_msgs is importable (make install builds tf2_msgs), else ~/map_to_odom."""
-        if not self.node._tf.kind.startswith("tf2"):
+        if not self.node.outputs.transform.kind.startswith("tf2"):
             return self.subscribe(f"/{NAME}/map_to_odom", TransformStamped, 100, "map_to_odom")
         from tf2_msgs.msg import TFMessage
         received = self.received["map_to_odom"] = []

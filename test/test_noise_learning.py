@@ -430,7 +430,7 @@ def test_noise_yaml_is_a_parameter_file_with_the_values_in_use(tmp_path):
 
 # ----------------------------------------------------------------- the node
 def test_node_diagnostics_show_the_learned_values():
-    """/diagnostics carries noise_learned.* once learning is on (ros/node.py)."""
+    """/diagnostics carries noise_learned.* once learning is on (ros/diagnostics.py)."""
     pytest.importorskip("rclpy")
     from test_node import Harness, scenario
     steps, _, _, initial, model = scenario(150)

@@ -39,8 +39,9 @@ def test_rviz_config_shows_every_output_in_the_map_frame():
 
 def test_node_latches_what_rviz_expects():
     """The node's latched publishers are the ones the RViz file subscribes Transient Local."""
-    source = (ROOT / "online_em_slam" / "ros" / "node.py").read_text()
-    latched = {call.args[1].value.lstrip("~/") for call in ast.walk(ast.parse(source))
+    calls = [node for module in sorted((ROOT / "online_em_slam" / "ros").glob("*.py"))
+             for node in ast.walk(ast.parse(module.read_text()))]      # the node's parts, one module each
+    latched = {call.args[1].value.lstrip("~/") for call in calls
                if isinstance(call, ast.Call) and getattr(call.func, "attr", "") == "create_publisher"
                and len(call.args) == 3 and isinstance(call.args[1], ast.Constant)
                and "latched" in ast.unparse(call.args[2])}
@@ -56,7 +57,8 @@ def test_launch_file_starts_node_rviz_and_bag_play():
 
 
 def test_setup_installs_launch_rviz_config_and_console_tools():
-    from setuptools import distutils  # noqa: F401  (setuptools' bundled distutils)
+    from setuptools import distutils          # setuptools' bundled distutils, before distutils.core
+    assert distutils is not None
     from distutils.core import run_setup
     cwd = os.getcwd()
     try:

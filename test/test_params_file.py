@@ -103,13 +103,13 @@ def test_ros_specs_and_descriptors_come_from_the_metadata():
 
 
 def test_every_node_setting_is_read_from_a_declared_parameter():
-    """NodeSettings is built from the node specs by name (ros/params.py _SETTING_PARAMETERS for the others)."""
+    """NodeSettings is built from the node specs by name (ros/params.py SETTING_PARAMETERS for the others)."""
     from dataclasses import fields
 
-    from online_em_slam.ros.params import _SETTING_PARAMETERS, NODE_SPECS, NodeSettings, build
+    from online_em_slam.ros.params import SETTING_PARAMETERS, NODE_SPECS, NodeSettings, build
     names = {spec.name for spec in NODE_SPECS}
     for f in fields(NodeSettings):
-        source = _SETTING_PARAMETERS.get(f.name, f.name)
+        source = SETTING_PARAMETERS.get(f.name, f.name)
         assert set(source if isinstance(source, tuple) else (source,)) <= names, f.name
     _, settings = build({"input_qos.depth": 7, "initial_pose.yaw": 0.5, "sensor_frame": "laser"})
     assert (settings.input_depth, settings.initial_pose, settings.sensor_frame) == (7, (0.0, 0.0, 0.5), "laser")

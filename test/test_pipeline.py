@@ -10,8 +10,8 @@ import pytest
 from online_em_slam.core.config import SlamConfig
 from online_em_slam.core.filter.slam import OnlineEMSlam
 from online_em_slam.core.types import Observations
-from online_em_slam.pipeline import (CONTROL, OBSERVATIONS, ODOMETRY, Feeder, Input, InputPath, LoadMonitor,
-                                     Sequencer, StampGuard)
+from online_em_slam.pipeline import (CONTROL, OBSERVATIONS, ODOMETRY, TIE_ORDER, Feeder, Input, InputPath,
+                                     InputPipeline, LoadMonitor, Sequencer, StampGuard, inputs)
 from online_em_slam.pipeline.gaps import GapDetector
 
 EMPTY = Observations(np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.int64))
@@ -206,6 +206,40 @@ def test_feeder_skips_empty_clouds_and_observations_before_motion():
     fed = feeder.apply(Input(0.4, OBSERVATIONS, payload=obs(5.0)))
     assert fed.report is not None and fed.trajectory_point[0] == pytest.approx(0.4)
     assert feeder.drops == Counter(no_motion_input=1, empty_cloud=1, overload=1)
+
+
+def test_the_tie_rule_is_the_table_not_the_kind_values(monkeypatch):
+    assert TIE_ORDER == (ODOMETRY, OBSERVATIONS, CONTROL)
+    items = [Input(1.0, CONTROL, 1), Input(1.0, OBSERVATIONS, 2), Input(1.0, ODOMETRY, 3), Input(0.5, CONTROL, 4)]
+    assert [i.seq for i in sorted(items)] == [4, 3, 2, 1]
+    # Another table orders the same inputs otherwise: the kinds' values play no part.
+    monkeypatch.setattr(inputs, "TIE_RANK", {CONTROL: 0, ODOMETRY: 1, OBSERVATIONS: 2})
+    assert [i.seq for i in sorted(items)] == [4, 1, 3, 2]
+
+
+def test_pipeline_feeds_released_inputs_and_calls_back_per_input_and_per_batch():
+    config = SlamConfig.from_dict({"motion": {"model": "odometry"}, "filter": {"seed": 1, "num_particles": 10}})
+    applied, settled = [], []
+    pipeline = InputPipeline(OnlineEMSlam(config), "odom", input_delay=0.0, jump_threshold=1.0,
+                             on_applied=lambda item, fed: applied.append((item.kind, item.stamp, fed)),
+                             on_settled=lambda used, observed: settled.append((used, observed)))
+    pipeline.push(ODOMETRY, 0.1, (0.0, 0.0, 0.0), 0.0)
+    pipeline.push(OBSERVATIONS, 0.1, obs(5.0), 0.0)
+    assert [(kind, stamp) for kind, stamp, _ in applied] == [(ODOMETRY, 0.1), (OBSERVATIONS, 0.1)]
+    assert applied[0][2].moved and applied[1][2].report is not None
+    assert settled == [(True, False), (True, True)]
+    assert pipeline.estimator.last_stamp == pytest.approx(0.1)
+
+
+def test_pipeline_sheds_observations_only_when_shedding_and_loaded():
+    config = SlamConfig.from_dict({"motion": {"model": "odometry"}, "filter": {"seed": 1, "num_particles": 10}})
+    for shedding, expected in ((False, 0), (True, 1)):
+        pipeline = InputPipeline(OnlineEMSlam(config), "odom", 0.0, 1.0, shedding=shedding, clock=lambda: 1.0)
+        pipeline.push(ODOMETRY, 0.1, (0.0, 0.0, 0.0), 0.0)
+        pipeline.busy(1.0, 0.95)                       # above the limit (0.9 of the 1 s window)
+        pipeline.push(OBSERVATIONS, 0.2, obs(5.0), 0.0)
+        assert pipeline.drops["overload"] == expected and pipeline.max_load == pytest.approx(0.95)
+        assert pipeline.feeder.motion_seen
 
 
 def test_load_monitor():

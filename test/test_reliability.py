@@ -102,7 +102,8 @@ def test_every_accepted_initial_pose_std_survives_a_reset():
 
 
 # ----------------------------------------------------------------- observation clouds
-def make_cloud(columns: dict, layout) -> "PointCloud2":
+def make_cloud(columns: dict, layout):
+    """A sensor_msgs/PointCloud2 of ``columns`` laid out as ``layout``."""
     from sensor_msgs.msg import PointCloud2, PointField
     from std_msgs.msg import Header
 

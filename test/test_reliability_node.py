@@ -17,7 +17,7 @@ from std_msgs.msg import Header  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from online_em_slam.ros import conversions as conv  # noqa: E402
-from test_node import T0, Harness, finite_pose  # noqa: E402,F401
+from test_node import T0, finite_pose  # noqa: E402
 from test_reliability import make_cloud  # noqa: E402
 
 

@@ -25,7 +25,7 @@ N_CONTROL = 400
 N_CLOUDS = 40
 
 
-def _write_small_bag(path):
+def write_small_bag(path):
     """/control at 200 Hz (2 s) and /landmark_observations at 20 Hz, plus /tf_static."""
     from online_em_slam.bagio import write_bag
     from online_em_slam.cloud import OBSERVATION_FIELDS, encode
@@ -74,8 +74,8 @@ def _write_small_bag(path):
 
 def _tf2_available() -> bool:
     try:
-        import tf2_msgs.msg  # noqa: F401
-        return True
+        import tf2_msgs.msg
+        return tf2_msgs.msg.TFMessage is not None
     except ImportError:
         return False
 
@@ -98,7 +98,7 @@ def test_replay_delivers_every_message(tmp_path):
     from online_em_slam.cloud import decode_message
 
     bag = tmp_path / "small"
-    _write_small_bag(bag)
+    write_small_bag(bag)
 
     context = Context()
     rclpy.init(context=context)

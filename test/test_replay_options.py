@@ -115,10 +115,10 @@ def test_live_replay_with_options(monkeypatch, tmp_path):
     from sensor_msgs.msg import PointCloud2
     from std_srvs.srv import Trigger
 
-    from test_replay import N_CONTROL, _write_small_bag   # /control 200 Hz, 2 s from t = 10 s
+    from test_replay import N_CONTROL, write_small_bag   # /control 200 Hz, 2 s from t = 10 s
 
     bag = tmp_path / "small"
-    _write_small_bag(bag)
+    write_small_bag(bag)
     monkeypatch.setenv("ROS_DOMAIN_ID", str(DOMAIN_ID))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env = dict(os.environ)

@@ -149,7 +149,7 @@ def test_live_node_places_the_landmark_through_tf_and_checks_the_frames(ros, mon
     odometry of another child frame and clouds in an unknown frame are counted."""
     monkeypatch.setitem(sys.modules, "tf2_ros", fake_tf2_ros({("base_link", "laser"): (1.0, 0.5, math.pi / 2)}))
     node = ros.start(motion_source="odom", sensor_frame="laser", publish_particles=False)
-    assert node._frames.uses_tf and not node._tf.kind.startswith("tf2_ros")
+    assert node.inputs.frames.uses_tf and not node.outputs.transform.kind.startswith("tf2_ros")
     header = lambda t, frame: Header(stamp=conv.sec_to_stamp(t), frame_id=frame)  # noqa: E731
     for k in range(30):
         t = T0 + 0.05 * k

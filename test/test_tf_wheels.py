@@ -21,10 +21,10 @@ pytestmark = pytest.mark.usefixtures("no_discovery")     # conftest.py
 
 def _tf2_msgs_importable() -> bool:
     try:
-        from tf2_msgs.msg import TFMessage  # noqa: F401
+        from tf2_msgs.msg import TFMessage
     except ImportError:
         return False
-    return True
+    return TFMessage is not None
 
 
 def test_tf2_msgs_source_package_is_hidden_from_colcon_and_rosdep():
@@ -64,12 +64,12 @@ class _FakeNode:
 
 def test_fallback_to_map_to_odom_when_tf2_msgs_is_not_importable(monkeypatch):
     pytest.importorskip("rclpy")
-    from online_em_slam.ros.node import _TransformSender
+    from online_em_slam.ros.transform_sender import TransformSender
     monkeypatch.setitem(sys.modules, "tf2_ros", None)          # None in sys.modules: ImportError
     monkeypatch.setitem(sys.modules, "tf2_msgs", None)
     monkeypatch.setitem(sys.modules, "tf2_msgs.msg", None)
     node = _FakeNode()
-    sender = _TransformSender(node)
+    sender = TransformSender(node)
     assert node.publishers == [("TransformStamped", "~/map_to_odom")]
     assert "~/map_to_odom" in sender.kind
 
@@ -81,9 +81,9 @@ def test_map_to_odom_on_tf_as_tf2_msgs_tfmessage(ros):
     from online_em_slam.ros import conversions as conv
     node = ros.start(motion_source="odom", **{"initial_pose.x": 1.0, "initial_pose.y": 2.0,
                                               "initial_pose.yaw": 0.5})
-    if node._tf.kind.startswith("tf2_ros"):
+    if node.outputs.transform.kind.startswith("tf2_ros"):
         pytest.skip("tf2_ros importable: the broadcaster publishes /tf (real Jazzy install)")
-    assert node._tf.kind == "tf2_msgs/TFMessage on /tf"
+    assert node.outputs.transform.kind == "tf2_msgs/TFMessage on /tf"
     # REP-105: one publisher of map -> odom, on /tf, of the real tf2_msgs/msg/TFMessage type.
     (info,) = ros.node.get_publishers_info_by_topic("/tf")
     assert info.node_name == "online_em_slam"

@@ -383,10 +383,9 @@ def released_events(inputs):
     """A runner BagInputs' events through the input path as the runner feeds them
     (online_em_slam.runner.feed): (kind, stamp, payload), stamp-ordered; the path's
     refusals are added to ``inputs.refused``."""
-    from ..pipeline import InputPath
-    from ..runner import motion_streams
+    from ..pipeline import InputPath, merged_streams
 
-    path = InputPath(motion_streams(inputs.motion_source), silence=inputs.input_delay,
+    path = InputPath(merged_streams(inputs.motion_source), silence=inputs.input_delay,
                      jump_threshold=inputs.jump_threshold, restart_on_jump_back=False)
     refused: Counter = Counter()
     for kind, stamp, payload, log_time in inputs.events.stream(refused):

@@ -1,5 +1,5 @@
 """The input path shared by the node and the offline runner: inputs in arrival
-order go in, inputs in (stamp, kind, arrival) order come out.
+order go in, inputs in (stamp, tie rule, arrival) order come out (inputs.order_key).
 
     stamp check -> StampGuard (lone bad stamps, confirmed jumps)
                 -> GapDetector (messages lost upstream, counted)

@@ -2,7 +2,7 @@
 
 Every stream arrives in stamp order, so an input may be released once every
 stream still alive has delivered something at least as recent: the merge then
-equals a global sort by (stamp, kind, arrival) however the streams interleave
+equals a global sort by (stamp, tie rule, arrival) however the streams interleave
 on the wire, which is what lets the node and the offline runner feed the
 estimator the identical sequence.  Every message of a stream refreshes its
 liveness and advances its watermark, including empty clouds and messages that
@@ -111,7 +111,7 @@ class Sequencer:
         return min(marks)
 
     def release(self, wall: float, limit: float | None = None) -> list[Input]:
-        """Inputs at or below the watermark (or ``limit``), in (stamp, kind, arrival) order."""
+        """Inputs at or below the watermark (or ``limit``), in (stamp, tie rule, arrival) order."""
         mark = self.watermark(wall) if limit is None else limit
         out = []
         while self._heap and self._heap[0].stamp <= mark:

@@ -19,13 +19,13 @@ from ..cloud import (LANDMARK_FIELDS, MAX_ID, OBSERVATION_FIELDS, CloudFormatErr
                      observations_from_message)
 from ..core.models.angles import wrap_angle
 from ..core.types import LandmarkMap, Observations, PoseEstimate
-from ..quaternion import (DEGENERATE_QUATERNION, QUATERNION_TOLERANCE, odometry_yaw,  # noqa: F401 (re-exported)
+from ..quaternion import (DEGENERATE_QUATERNION, QUATERNION_TOLERANCE, odometry_yaw,  # re-exported
                           quaternion_to_yaw, yaw_to_xyzw)
 
 __all__ = ["CloudFormatError", "stamp_to_sec", "sec_to_stamp", "yaw_to_quaternion", "quaternion_to_yaw", "odometry_yaw",
            "observations_from_cloud", "observations_to_cloud", "landmarks_to_cloud", "landmarks_to_markers",
            "pose_to_msg", "particles_to_msg", "pose2d_compose", "pose2d_inverse", "transform_msg",
-           "COVARIANCE_INDEX"]
+           "COVARIANCE_INDEX", "DEGENERATE_QUATERNION", "QUATERNION_TOLERANCE"]
 
 # (row, col) of the 3x3 (x, y, yaw) covariance -> index in the 6x6 row-major ROS covariance.
 COVARIANCE_INDEX = {(0, 0): 0, (0, 1): 1, (0, 2): 5, (1, 0): 6, (1, 1): 7, (1, 2): 11,

@@ -298,7 +298,7 @@ def _check_range(name: str, value: Any, low: float, high: float) -> None:
 
 # NodeSettings fields read from a parameter of another name (initial_pose: three);
 # every other field is the parameter of its own name, converted to the field's type.
-_SETTING_PARAMETERS = {"input_reliability": "input_qos.reliability", "input_depth": "input_qos.depth",
+SETTING_PARAMETERS = {"input_reliability": "input_qos.reliability", "input_depth": "input_qos.depth",
                        "initial_pose": ("initial_pose.x", "initial_pose.y", "initial_pose.yaw")}
 
 
@@ -306,7 +306,7 @@ def _node_settings(merged: dict[str, Any]) -> NodeSettings:
     """NodeSettings from the checked node parameters (NODE_SPECS), plus the rules across them."""
     values = {}
     for f in fields(NodeSettings):
-        source = _SETTING_PARAMETERS.get(f.name, f.name)
+        source = SETTING_PARAMETERS.get(f.name, f.name)
         if isinstance(source, tuple):
             values[f.name] = tuple(float(merged[name]) for name in source)
         else:

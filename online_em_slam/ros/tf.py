@@ -51,10 +51,10 @@ BUILDER_PATHS = (
 
 def tf2_msgs_available() -> bool:
     try:
-        from tf2_msgs.msg import TFMessage  # noqa: F401
+        from tf2_msgs.msg import TFMessage
     except ImportError:
         return False
-    return True
+    return TFMessage is not None
 
 
 def write_sources(workdir: Path, source: Path = SOURCE_DIR) -> Path:

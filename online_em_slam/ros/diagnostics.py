@@ -1,0 +1,116 @@
+"""The node's /diagnostics: update and input rates, latency, drops by reason, load.
+
+The statistics are counted over a window that restarts at each publication
+(``diagnostics_period``); the status turns WARN while paused, when inputs were
+dropped since the last publication or when an input stream went silent.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.qos import QoSProfile
+from std_msgs.msg import Header
+
+from . import conversions as conv
+
+
+class Diagnostics:
+    """Statistics of the node's work and their publication (``node``: OnlineEmSlamNode)."""
+
+    def __init__(self, node) -> None:
+        self.node = node
+        self.updates = self.inputs = 0
+        self.window_start = time.monotonic()
+        self.window_updates = self.window_inputs = 0
+        self.latencies: list[float] = []
+        self.last_ess = float("nan")
+        self.resets = 0
+        self.drops_reported = 0
+        self.publisher = node.create_publisher(DiagnosticArray, "/diagnostics", QoSProfile(depth=10))
+
+    # ------------------------------------------------------------------ counting
+    def count_input(self) -> None:
+        """A well-formed input was received."""
+        self.inputs += 1
+        self.window_inputs += 1
+
+    def updated(self, report) -> None:
+        """An observation update was applied (``report``: its StepReport)."""
+        if math.isfinite(report.ess):
+            self.last_ess = float(report.ess)
+        self.updates += 1
+        self.window_updates += 1
+
+    def latency(self, seconds: float) -> None:
+        """Arrival of an input to its use by the estimator."""
+        self.latencies.append(seconds)
+
+    def count_reset(self) -> None:
+        self.last_ess = float("nan")
+        self.resets += 1
+
+    # ------------------------------------------------------------------ publication
+    def publish(self) -> None:
+        node = self.node
+        inputs = node.inputs                    # the queue, the load, corrections, frames, silent streams
+        with node.lock:
+            now = time.monotonic()
+            span = max(now - self.window_start, 1e-6)
+            latencies = np.asarray(self.latencies) if self.latencies else np.zeros(0)
+            drops = node.all_drops()
+            total = sum(drops.values())
+            slam = node.slam
+            landmarks = slam.landmarks()
+            values = {
+                "update_rate_hz": self.window_updates / span,
+                "input_rate_hz": self.window_inputs / span,
+                "latency_mean_ms": 1e3 * float(latencies.mean()) if latencies.size else 0.0,
+                "latency_max_ms": 1e3 * float(latencies.max()) if latencies.size else 0.0,
+                "ess": self.last_ess if math.isfinite(self.last_ess) else float(node.config.filter.num_particles),
+                "num_particles": slam.config.filter.num_particles,
+                "landmarks": len(landmarks),
+                "confirmed_landmarks": int(np.count_nonzero(landmarks.confirmed)),
+                "observation_updates": self.updates,
+                "inputs": self.inputs,
+                "queued_inputs": len(inputs.pipeline),
+                "load": inputs.pipeline.current_load(now),
+                "load_max": inputs.pipeline.max_load,
+                "paused": node.paused,
+                "resets": self.resets,
+                "last_stamp": slam.last_stamp if slam.last_stamp is not None else -1.0,
+                "dropped_total": total,
+            }
+            learned = slam.learned_noise()              # noise learned online (noise_learning.py)
+            if learned["enabled"]:
+                values.update({f"noise_learned.{k}": v for k, v in learned.items() if k not in ("enabled", "learning")})
+            values.update({f"dropped.{reason}": count for reason, count in sorted(drops.items())})
+            values.update({f"corrected.{reason}": count for reason, count in sorted(inputs.corrected.items())})
+            values.update(inputs.frames.diagnostics())      # unexpected_frame.*, unexpected_child_frame.*
+            level, message = DiagnosticStatus.OK, f"{len(landmarks)} landmarks"
+            if node.paused:
+                level, message = DiagnosticStatus.WARN, "paused"
+            elif total > self.drops_reported:
+                level = DiagnosticStatus.WARN
+                message += f", {total - self.drops_reported} inputs dropped in the last {span:.1f} s"
+            elif self.updates == 0:
+                message = "waiting for observations"
+            stale = inputs.watch.stale(time.monotonic(), node.settings.input_delay)
+            if stale and not node.paused:
+                level = DiagnosticStatus.WARN
+                message += "; silent inputs: " + ", ".join(f"{name} for {age:.1f} s" for name, age in stale)
+            self.drops_reported = total
+            self.window_start, self.window_updates, self.window_inputs = now, 0, 0
+            self.latencies = []
+            stamp = node.now_sec()
+            if stamp <= 0.0 and slam.last_stamp is not None:
+                stamp = slam.last_stamp
+            status = DiagnosticStatus(
+                level=level, name=f"{node.get_name()}: online EM SLAM", message=message,
+                hardware_id=node.get_fully_qualified_name(),
+                values=[KeyValue(key=k, value=(f"{v:.6g}" if isinstance(v, float) else str(v)))
+                        for k, v in values.items()])
+            self.publisher.publish(DiagnosticArray(header=Header(stamp=conv.sec_to_stamp(stamp)),
+                                                   status=[status]))

@@ -1,0 +1,218 @@
+"""The node's inputs: subscriptions, decoding and the input pipeline.
+
+  ``odom``                   nav_msgs/Odometry: motion input when motion_source = odom,
+                             and always the odom -> base pose for map -> odom.
+  ``control``                geometry_msgs/TwistStamped (motion_source = control):
+                             linear.x speed, angular.z steering angle or yaw rate.
+  ``landmark_observations``  sensor_msgs/PointCloud2 with fields range, bearing
+                             [, id (-1 unknown), range_std, bearing_std].
+
+Each callback decodes its message and hands it to the
+:class:`~online_em_slam.pipeline.InputPipeline` (the one the offline runner
+uses), which applies what it releases to the estimator and calls the outputs
+back.  Every message with a readable stamp tells the pipeline its stream is
+alive, used or not; an input that cannot be used is dropped and counted by
+reason, with a throttled warning.  When the node cannot keep up with
+best-effort inputs the pipeline sheds observation updates
+(``dropped.overload``), never motion; reliable inputs are never shed (the
+publisher waits).
+"""
+from __future__ import annotations
+
+import time
+from collections import Counter
+
+import numpy as np
+from geometry_msgs.msg import TwistStamped
+from nav_msgs.msg import Odometry
+from rclpy.event_handler import SubscriptionEventCallbacks
+from sensor_msgs.msg import PointCloud2
+
+from ..pipeline import CONTROL, KIND_NAME, OBSERVATIONS, ODOMETRY, InputPipeline
+from . import conversions as conv
+from .input_watch import InputWatch
+from .qos import input_qos
+from .tf import SensorFrames
+
+# Odometry positions beyond this (m) are absurd (the map's coordinate range, as initial_pose.*).
+ODOMETRY_POSITION_LIMIT = 1e7
+
+
+class Inputs:
+    """Subscriptions and the input pipeline (``node``: OnlineEmSlamNode)."""
+
+    def __init__(self, node, outputs, diagnostics) -> None:
+        self.node = node
+        self.outputs = outputs
+        self.diagnostics = diagnostics
+        s = node.settings
+        self.corrected: Counter = Counter()       # inputs used after a repair (normalised quaternions)
+        self.frames = SensorFrames(node)          # frame ids checked; the sensor pose from TF (tf2_ros)
+        self.watch = InputWatch()                 # silent input streams turn diagnostics WARN
+        self.pending_jump = False
+        self.pipeline = InputPipeline(node.slam, s.motion_source, s.input_delay, s.time_jump_threshold,
+                                      restart_on_jump_back=s.reset_on_time_jump,
+                                      shedding=self.sheds(s), on_applied=outputs.applied,
+                                      on_settled=outputs.settled, on_jump=self._on_jump)
+        self.motion_kind = self.pipeline.motion_kind
+        qos = input_qos(s.input_reliability, s.input_depth)
+        self.odom_sub = node.create_subscription(Odometry, s.odom_topic, self.on_odom, qos,
+                                                 event_callbacks=self._events(s.odom_topic))
+        self.control_sub = None
+        if s.motion_source == "control":
+            self.control_sub = node.create_subscription(TwistStamped, s.control_topic, self.on_control,
+                                                        qos, event_callbacks=self._events(s.control_topic))
+        self.obs_sub = node.create_subscription(PointCloud2, s.observations_topic, self.on_observations,
+                                                qos, event_callbacks=self._events(s.observations_topic))
+
+    @staticmethod
+    def sheds(settings) -> bool:
+        """Shedding keeps best-effort queues from overflowing; with reliable (KEEP_ALL) inputs
+        the publisher waits instead, so a lossless replay is never shed."""
+        return settings.input_reliability != "reliable"
+
+    def apply_settings(self, settings) -> None:
+        """Parameters changed at run time: the merge window and shedding follow."""
+        self.pipeline.set_input_delay(settings.input_delay)
+        self.pipeline.shedding = self.sheds(settings)
+
+    def _events(self, topic: str) -> SubscriptionEventCallbacks:
+        node = self.node
+
+        def incompatible(info) -> None:
+            node.get_logger().error(
+                f"publisher on {topic!r} has an incompatible QoS (policy {info.last_policy_kind}); "
+                "for best-effort publishers set input_qos.reliability: best_effort (the default)",
+                throttle_duration_sec=node.settings.warn_throttle_period)
+
+        def lost(info) -> None:
+            with node.lock:
+                node.drops["message_lost"] += int(info.total_count_change)
+        return SubscriptionEventCallbacks(incompatible_qos=incompatible, message_lost=lost)
+
+    # ------------------------------------------------------------------ callbacks
+    def on_odom(self, msg: Odometry) -> None:
+        node = self.node
+        started = time.monotonic()
+        self.watch.heard(node.settings.odom_topic, started)
+        stamp = conv.stamp_to_sec(msg.header.stamp)
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        yaw, quaternion_problem = conv.odometry_yaw(q)
+        pose = np.array([p.x, p.y, yaw], dtype=float)
+        with node.lock:
+            s = node.settings
+            self.frames.check_odometry(msg.child_frame_id, s, msg.header.frame_id)
+            if quaternion_problem == "degenerate_quaternion":
+                self._refuse(ODOMETRY, stamp, quaternion_problem, "odometry with a degenerate (zero or "
+                             f"yaw-less) orientation quaternion ({q.x}, {q.y}, {q.z}, {q.w})", started)
+                return
+            if not np.all(np.isfinite(pose)) or not np.isfinite([q.x, q.y, q.z, q.w]).all():
+                self._refuse(ODOMETRY, stamp, "non_finite_odometry", "odometry with non-finite pose", started)
+                return
+            if np.max(np.abs(pose[:2])) > ODOMETRY_POSITION_LIMIT:
+                # Finite but absurd: it would be published as ~/pose and spoil map -> odom.
+                self._refuse(ODOMETRY, stamp, "implausible_odometry",
+                             f"odometry at ({p.x:.3g}, {p.y:.3g}) m, beyond +-{ODOMETRY_POSITION_LIMIT:.0e} m", started)
+                return
+            if quaternion_problem:                   # used after normalisation: counted, not dropped
+                self.corrected[quaternion_problem] += 1
+            # A lone bad stamp (0, far future) must not stamp ~/pose or map -> odom: one
+            # pose at 2^31 s would hold back every later one.
+            on_time_line = self.pipeline.on_time_line(ODOMETRY, stamp)
+            if on_time_line:
+                self.outputs.remember_odometry(stamp, pose)
+            if self.motion_kind == ODOMETRY:
+                self._input(ODOMETRY, stamp, pose, started)
+            else:
+                self.diagnostics.count_input()      # odometry only places map -> odom and ~/pose
+                if on_time_line:
+                    self.pipeline.watch(ODOMETRY, stamp)
+                else:
+                    node.drops["stamp_outlier"] += 1
+            if on_time_line:
+                self.outputs.publish_odometry_pose(stamp, pose)
+            self.pipeline.busy(time.monotonic(), time.monotonic() - started)
+
+    def on_control(self, msg: TwistStamped) -> None:
+        node = self.node
+        started = time.monotonic()
+        self.watch.heard(node.settings.control_topic, started)
+        control = np.array([msg.twist.linear.x, msg.twist.angular.z], dtype=float)
+        stamp = conv.stamp_to_sec(msg.header.stamp)
+        with node.lock:
+            if stamp == 0.0:
+                stamp = node.now_sec()      # unstamped twist: use the arrival time
+            if not np.all(np.isfinite(control)):
+                self._refuse(CONTROL, stamp, "non_finite_control", "control with non-finite speed or angle",
+                             started)
+                return
+            self._input(CONTROL, stamp, control, started)
+            self.pipeline.busy(time.monotonic(), time.monotonic() - started)
+
+    def on_observations(self, msg: PointCloud2) -> None:
+        node = self.node
+        started = time.monotonic()
+        self.watch.heard(node.settings.observations_topic, started)
+        stamp = conv.stamp_to_sec(msg.header.stamp)
+        with node.lock:
+            try:
+                # Observations with invalid ids, zero ranges or wild bearings are left out and counted.
+                observations = conv.observations_from_cloud(msg, drops=node.drops)
+            except ValueError as error:      # CloudFormatError is a ValueError
+                self._refuse(OBSERVATIONS, stamp, "malformed_cloud", f"malformed observation cloud: {error}",
+                             started)
+                return
+            # Into the estimator's sensor frame: through TF when it resolves the cloud's frame.
+            observations = self.frames.observations(msg.header.frame_id, stamp, observations, node.settings,
+                                                    node.slam.config.sensor)
+            # An empty cloud goes through the merge too: it says "nothing seen up to here".
+            self._input(OBSERVATIONS, stamp, observations, started)
+            self.pipeline.busy(time.monotonic(), time.monotonic() - started)
+
+    def _refuse(self, kind: int, stamp: float, reason: str, what: str, started: float) -> None:
+        """An input whose payload is unusable: counted, and its stamp still advances its stream."""
+        node = self.node
+        node.drops[reason] += 1
+        node.get_logger().warning(f"dropped {what}", throttle_duration_sec=node.settings.warn_throttle_period)
+        if not node.paused and kind in (self.motion_kind, OBSERVATIONS):
+            self.pipeline.heard(kind, stamp, started)
+
+    def _input(self, kind: int, stamp: float, payload, started: float) -> None:
+        if kind != OBSERVATIONS or len(payload):
+            self.diagnostics.count_input()
+        if self.node.paused:
+            self.node.drops["paused"] += 1
+            return
+        self.check_clock_jump()
+        self.pipeline.push(kind, stamp, payload, started)
+
+    def _on_jump(self, jump, restarted: bool) -> None:
+        """A confirmed jump of the input stamps (before the inputs it released are applied)."""
+        if restarted:
+            self.node.reset(f"{KIND_NAME[jump.released[0].kind]} stamps jumped back {jump.size:.3f} s "
+                            f"(confirmed by {len(jump.released)} inputs)", keep_inputs=True, keep_map=True)
+        else:
+            self.node.get_logger().warning(f"input stamps jumped {'back' if jump.backward else 'ahead'} "
+                                           f"{jump.size:.3f} s (confirmed by {len(jump.released)} inputs)")
+
+    # ------------------------------------------------------------------ time
+    def on_clock_jump(self, jump) -> None:
+        # Runs inside the clock update: only note it; the reset happens in check_clock_jump.
+        self.pending_jump = True
+
+    def check_clock_jump(self) -> None:
+        """A /clock jump back confirms a time jump by itself (bag played in a loop)."""
+        if not self.pending_jump:
+            return
+        self.pending_jump = False
+        node, s = self.node, self.node.settings
+        now = node.now_sec()
+        newest = self.pipeline.newest
+        if s.reset_on_time_jump and newest is not None and newest > now + s.time_jump_threshold:
+            node.reset(f"clock jumped back to {now:.3f} s", keep_map=True)
+
+    def housekeeping(self) -> None:
+        """Periodic: a /clock jump, and a stream that went silent stops holding the others back."""
+        with self.node.lock:
+            self.check_clock_jump()
+            self.pipeline.release(time.monotonic())
