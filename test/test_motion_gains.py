@@ -1,4 +1,4 @@
-"""The calibration of the motion input learned online (core/em/motion_gains.py): the models'
+"""The calibration of the motion input learned online (core/em/noise/motion_gains.py): the models'
 gains, the filter's sensitivity of the mean pose to them against finite differences of a
 fresh integration, the statistic (G) against pose errors simulated step by step, and the
 learner recovering a steering gain of 0.7 on the simulated scenario."""
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from online_em_slam.core.config import MotionConfig, NoiseLearningConfig, replace_section
-from online_em_slam.core.em.motion_gains import MotionGains, gain_statistic, transported
-from online_em_slam.core.em.motion_noise import MotionSteps, compound
+from online_em_slam.core.em.noise.motion_gains import MotionGains, gain_statistic, transported
+from online_em_slam.core.em.noise.motion_noise import MotionSteps, compound
 from online_em_slam.core.filter.slam import OnlineEMSlam
 from online_em_slam.core.models.motion import integrate_segments, propagate, scaled_noise
 from online_em_slam.simulation import ScenarioConfig, simulate, slam_config_for

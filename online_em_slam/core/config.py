@@ -365,7 +365,7 @@ LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "dof", "range_g
 
 @dataclass
 class NoiseLearningConfig:
-    """Online EM estimation of the noise parameters (docs/METHOD.md "Noise learned online", core/em/noise_learning.py).
+    """Online EM estimation of the noise parameters (docs/METHOD.md "Noise learned online", core/em/noise/).
 
     learn: the quantities estimated, a subset of ``LEARNABLE_NOISE``: ``range``
         (sigma_range), ``bearing`` (sigma_bearing), ``correlation`` (rho),

@@ -28,7 +28,7 @@ from ..em.observed import ObservedInformationEM
 from ..em.step import FilterStepData, MStep
 from .inputs import MotionInput
 from ..mapping.landmarks import LandmarkTable
-from ..em.noise_learning import NoiseLearner
+from ..em.noise.learner import NoiseLearner
 from ..models.observation import (component_precision_weight, information_noise, innovation, inv_det_2x2,
                                   inverse_observation, landmark_jacobian, noise_covariance, noise_loglik,
                                   predict_observation, sensor_poses)
@@ -116,7 +116,7 @@ class OnlineEMSlam:
         self._ess = float(n)
         self._map = LandmarkTable()
         self._m_step: MStep = self._m_step_factory(cfg, pose, self._rng)
-        self._noise = NoiseLearner(cfg)          # learned noise (noise_learning.py); configured until warm
+        self._noise = NoiseLearner(cfg)          # learned noise (em/noise/learner.py); configured until warm
         # The warm-up's inputs, filtered again once the learned noise is in use (_replay_warmup).
         replay = cfg.noise_learning.replay_warmup and bool(self._noise.learn)
         self._warmup_log: list | None = [] if replay else None
@@ -367,7 +367,7 @@ class OnlineEMSlam:
         log_w = log_prior + terms.log_likelihood
         weights = self._normalise(log_w)
         data = self._step_data(particles, weights, prior_weights, ancestors, trans_cov, rows, terms, sensor)
-        self._noise.update(data, self._map.n_obs[rows], self._map.ids[rows])   # noise statistics (noise_learning.py)
+        self._noise.update(data, self._map.n_obs[rows], self._map.ids[rows])   # noise statistics (em/noise/)
         pose_correction = self._m_step.update(data, self._map)
         self._commit(particles, weights, pose_correction)
         report.n_associated = int(rows.size)
@@ -577,7 +577,7 @@ class OnlineEMSlam:
         return PoseEstimate(self._input.last_stamp, mean, cov)
 
     def learned_noise(self) -> dict:
-        """Noise values learned online (noise_learning.py): estimates, counts, and whether in use."""
+        """Noise values learned online (em/noise/learner.py): estimates, counts, and whether in use."""
         return {**self._noise.learned(), "warmup_replayed": self._warmup_replayed}
 
     def learned_noise_parameters(self) -> dict:

@@ -48,7 +48,7 @@ ROW_FIELDS = {
     "avg_count": ((), "count"),
 }
 _OTHER_FIELDS = {"version": (), "pose": (3,)}
-# Optional: the noise in use when learned online (noise_learning.py), restored on load:
+# Optional: the noise in use when learned online (core/em/noise/learner.py), restored on load:
 # noise = (sigma_range, range_growth, sigma_bearing, rho, motion_scale), noise_mixture =
 # (mixture weights, mixture scales) as a (2, C) array, with Student-t noise
 # noise_dof (), its degrees of freedom, and noise_serial (2,), the serial correlation
