@@ -78,8 +78,6 @@ def range_noise_fit(counts: np.ndarray, means: np.ndarray, a: float, b: float, f
     params = np.array([a, b], dtype=float)
     if counts.size == 0 or not free.any():
         return a, b
-    if free[0] and not free[1] and b == 0.0 and a > 0.0 and np.all(np.isfinite(means)):
-        return _constant_range_noise_fit(counts, means[:, 2], a, b, iterations)
     for _ in range(iterations):
         weights = counts / np.maximum(_range_variance(means, params), 1e-300) ** 2
         cost = _range_cost(means, weights, params)
@@ -95,39 +93,6 @@ def range_noise_fit(counts: np.ndarray, means: np.ndarray, a: float, b: float, f
             break
         params = trial
     return float(params[0]), float(params[1])
-
-
-def _constant_range_noise_fit(counts: np.ndarray, squared: np.ndarray, a: float, b: float,
-                              iterations: int) -> tuple[float, float]:
-    """:func:`range_noise_fit` of a alone with b = 0 (the default: range_growth not learned),
-    in scalars where the general one has arrays, with the same floating-point operations.
-
-    With b = 0 (and finite means) every bin's variance a^2 + 2ab E[r] + b^2 E[r^2] is
-    exactly a^2 and the Jacobian's column 2 (a + b E[r]) exactly 2a; the sums over bins stay
-    the same BLAS dot products, and the 1x1 solve is LAPACK's one division.  (Solving for a
-    in closed form would give the same a up to rounding, not bit for bit.)
-    """
-    for _ in range(iterations):
-        var = a * a
-        floor = max(var, 1e-300)
-        weights = counts / (floor * floor)                  # counts / max(v, 1e-300)^2 (numpy squares by x * x)
-        rho = var - squared
-        cost = float(weights @ rho ** 2)
-        J = np.full(squared.size, 2.0 * a)
-        G = float(J @ (weights * J))
-        G = G + 1e-12 * max(G, 1e-300)                      # the ridge of _gauss_newton_step
-        step = -(float(J @ (weights * rho)) / G) if G != 0.0 else 0.0   # singular: no step, as LinAlgError
-        if abs(step) <= 1e-9 * abs(a) + 1e-15:
-            break                                           # converged (b's step is 0)
-        for _ in range(10):                                 # backtrack: keep the cost decreasing
-            trial = a + step
-            if trial > 0 and float(weights @ (trial * trial - squared) ** 2) <= cost * (1 + 1e-12):
-                break
-            step = 0.5 * step
-        else:
-            break
-        a, b = trial, b + 0.0
-    return float(a), float(b)
 
 
 def _range_variance(means: np.ndarray, params: np.ndarray) -> np.ndarray:
