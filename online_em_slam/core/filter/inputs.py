@@ -15,8 +15,9 @@ from collections import Counter
 
 import numpy as np
 
-from ..config import MotionConfig
+from ..config import MotionConfig, SensorConfig
 from ..models.motion import odometry_increment
+from ..types import Observations
 
 # An odometry increment may exceed max_speed * dt by this much (m, rad) before it
 # is implausible: stamps jitter, and odometry sources integrate between messages.
@@ -120,3 +121,26 @@ class MotionInput:
         self._implausible_odometry = 0
         self.last_odometry, self._last_odometry_stamp = pose[:3].copy(), float(stamp)
         return True, None
+
+
+def usable_observations(obs: Observations, sensor: SensorConfig, cap: int) -> tuple[np.ndarray, dict[str, int]]:
+    """(mask of the observations an estimator uses, counts of the others by reason).
+
+    Usable: finite, range >= 0, valid per-point stds, range within [min_range, max_range];
+    of more than ``cap`` usable points (a cloud far beyond any sensor's count would cost
+    memory and time in the association) the first ``cap`` are kept, the rest counted.
+    """
+    finite = np.isfinite(obs.ranges) & np.isfinite(obs.bearings)
+    valid = finite & (obs.ranges >= 0)
+    std_ok = obs.valid_std()
+    in_range = valid & std_ok & (obs.ranges >= max(sensor.min_range, 0.0)) & (obs.ranges <= sensor.max_range)
+    dropped: dict[str, int] = {}
+    for reason, mask in (("invalid_observation", ~valid), ("invalid_std", valid & ~std_ok),
+                         ("observation_out_of_range", valid & std_ok & ~in_range)):
+        if mask.any():
+            dropped[reason] = int(mask.sum())
+    if in_range.sum() > cap:
+        beyond = np.flatnonzero(in_range)[cap:]
+        in_range[beyond] = False
+        dropped["too_many_observations"] = int(beyond.size)
+    return in_range, dropped
