@@ -24,7 +24,7 @@ from scipy.stats import chi2
 from ..config import AssociationConfig, ObservationNoiseConfig
 from ..models.angles import wrap_angle
 from ..models.observation import innovation, landmark_jacobian, mahalanobis_2d, predict_observation
-from .particles import weighted_outer, weighted_pose_mean, weighted_sum
+from ..weighted import weighted_outer, weighted_pose_mean, weighted_sum
 
 NEW_LANDMARK = -1
 AMBIGUOUS = -2

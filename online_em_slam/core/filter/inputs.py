@@ -33,7 +33,6 @@ class MotionInput:
 
     def __init__(self, motion: MotionConfig, drops: Counter, stamp: float | None = None) -> None:
         self.motion = motion
-        self.motion_model = motion.model
         self.drops = drops
         self.reset(stamp)
 
@@ -56,7 +55,7 @@ class MotionInput:
 
     def control(self, stamp: float, control) -> np.ndarray | None:
         """The control (2,) if it can be used at ``stamp``, else None (counted)."""
-        if self.motion_model == "odometry":
+        if self.motion.uses_odometry:
             self.drops["control_ignored_by_odometry_model"] += 1
             return None
         u = np.asarray(control, dtype=float).reshape(-1)
@@ -71,7 +70,7 @@ class MotionInput:
     def _plausible_control(self, u: np.ndarray) -> bool:
         if abs(u[0]) > self.motion.max_speed:
             return False
-        if self.motion_model == "unicycle":
+        if self.motion.motion_input == "yaw_rate":
             return abs(u[1]) <= self.motion.max_yaw_rate
         return abs(u[1]) <= _MAX_STEERING
 
@@ -95,7 +94,7 @@ class MotionInput:
                 return self._implausible(pose, stamp)
         self._implausible_odometry = 0
         self.last_odometry, self._last_odometry_stamp = pose[:3].copy(), float(stamp)
-        return True, increment if self.motion_model == "odometry" else None
+        return True, increment if self.motion.uses_odometry else None
 
     def odometry_motion(self, stamp: float, odom_pose) -> tuple[bool, np.ndarray | None, float]:
         """:meth:`odometry` plus the time since the last processed input, the step the

@@ -32,8 +32,8 @@ from ..models.observation import information_noise, inverse_observation, noise_c
 from .observation_terms import ObservationTerms, observation_terms
 from .prediction import PendingMotion
 from .warmup import WarmupReplay
-from .particles import (effective_sample_size, normalize_log_weights, sample_gaussians, systematic_resample,
-                        weighted_pose_covariance, weighted_pose_mean)
+from .particles import effective_sample_size, normalize_log_weights, sample_gaussians, systematic_resample
+from ..weighted import weighted_pose_covariance, weighted_pose_mean
 from ..types import LandmarkMap, Observations, PoseEstimate, StepReport
 
 
@@ -129,11 +129,9 @@ class OnlineEMSlam:
             raise ValueError(f"set_pose needs a finite (x, y, yaw) and 3 finite stds, got {pose} and {std}")
         self._flush_motion()
         weights, _ = normalize_log_weights(self._log_w)
-        restart = getattr(self._m_step, "restart_pose", None)
-        if isinstance(self._m_step, CompleteDataEM):
+        restart = getattr(self._m_step, "restart_pose", None)      # a plugged-in map update may have none
+        if restart is not None:
             restart(pose, std, self._map, weights)
-        elif restart is not None:
-            restart(pose, std, self._map)
         n = self._particles.shape[0]
         particles = pose + self._rng.standard_normal((n, 3)) * np.abs(std)
         particles[:, 2] = wrap_angle(particles[:, 2])
@@ -186,7 +184,7 @@ class OnlineEMSlam:
             held.last_stamp = self._anchor_time = stamp
             return
         dt = stamp - held.last_stamp
-        if dt > 0 and held.held_control is not None and self.config.motion.model != "odometry":
+        if dt > 0 and held.held_control is not None and not self.config.motion.uses_odometry:
             self._predict(held.held_control, dt)
         held.last_stamp = stamp
         if stamp - self._anchor_time > self.config.motion.max_prediction_interval:

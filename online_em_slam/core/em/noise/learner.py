@@ -42,7 +42,7 @@ from ...models.motion import ROTATION_STDS, TRANSLATION_STDS, scaled_noise, step
 from ...models.observation import information_noise, noise_covariance
 from ..observed_information import motion_residual
 from ..step import FilterStepData
-from ...filter.particles import weighted_pose_mean
+from ...weighted import weighted_pose_mean
 from .averages import StochasticAverage
 from .motion_gains import MotionGains, gain_statistic, move_towards
 from .motion_noise import MotionWindow, absolute_error, prediction_statistic, ratio_error

@@ -25,7 +25,8 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.special import digamma
 
-from ...config import NoiseLearningConfig, ObservationNoiseConfig, SensorConfig
+from ...config import ObservationNoiseConfig, SensorConfig
+from ...noise_learning_config import NoiseLearningConfig
 from ...models.observation import (component_precision_weight, inv_det_2x2, mahalanobis_2d, noise_loglik,
                                    student_t_weight)
 from ..step import FilterStepData
