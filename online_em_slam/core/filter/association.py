@@ -188,7 +188,7 @@ def predicted_measurements(theta: np.ndarray, sensor: np.ndarray, w: np.ndarray,
 def merge_close(positions: np.ndarray, obs_idx: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Of new landmark ``positions`` (k, 2) closer than ``radius`` to each other, the earlier is
     kept: (kept positions, their observation indices).  A k-d tree keeps this O(n log n) in
-    memory and time for a hostile cloud, where the n x n distance matrix was not."""
+    memory and time for a hostile cloud, where an n x n distance matrix would not."""
     if positions.shape[0] < 2:
         return positions, obs_idx
     pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")

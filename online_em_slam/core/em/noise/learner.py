@@ -55,7 +55,7 @@ OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture"
                                     "serial_correlation"})
 # Largest change of the motion scale in use per filter step, in log: a factor 9 takes 110 steps.
 MAX_SCALE_RATE = 0.02
-# Its bounds on the ratio, by numpy's exp as they always were (math.exp may round differently).
+# Its bounds on the ratio, by numpy's exp (math.exp may round differently).
 _SCALE_RATIO = (float(np.exp(-MAX_SCALE_RATE)), float(np.exp(MAX_SCALE_RATE)))
 
 
