@@ -8,8 +8,8 @@ from scipy.optimize import least_squares
 from online_em_slam.core.config import ObservationNoiseConfig
 from online_em_slam.core.models.observation import (innovation, inv_det_2x2, landmark_jacobian, noise_covariance,
                                              predict_observation)
-from online_em_slam.core.filter.particles import (effective_sample_size, normalize_log_weights,
-                                           systematic_resample, weighted_pose_mean)
+from online_em_slam.core.filter.particles import effective_sample_size, normalize_log_weights, systematic_resample
+from online_em_slam.core.weighted import weighted_pose_mean
 from online_em_slam.core.em.statistics import (backward_kernel, forward_smooth, m_step,
                                             observation_statistics, paris_indices)
 

@@ -72,7 +72,7 @@ def test_a_huge_unknown_id_cloud_is_capped_and_costs_little_memory():
 def test_merging_of_new_landmarks_keeps_the_first_of_close_pairs():
     slam = OnlineEMSlam(SlamConfig())
     positions = np.array([[0.0, 0.0], [0.5, 0.0], [5.0, 0.0], [5.2, 0.1], [20.0, 0.0]])
-    kept, index = slam._dedupe_new(positions, np.arange(5))
+    kept, index = slam._merge_new(positions, np.arange(5))
     np.testing.assert_array_equal(index, [0, 2, 4])
 
 

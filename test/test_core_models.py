@@ -152,7 +152,7 @@ def test_noise_covariance_is_g_diag_q_g_transpose():
 
 
 def test_cofactor_inverse_matches_lapack():
-    from online_em_slam.core.filter.particles import symmetric_inverse_3x3
+    from online_em_slam.core.models.gaussian import symmetric_inverse_3x3
     rng = np.random.default_rng(4)
     A = rng.standard_normal((50, 3, 3))
     P = A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(3)

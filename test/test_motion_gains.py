@@ -1,4 +1,4 @@
-"""The calibration of the motion input learned online (core/em/motion_gains.py): the models'
+"""The calibration of the motion input learned online (core/em/noise/motion_gains.py): the models'
 gains, the filter's sensitivity of the mean pose to them against finite differences of a
 fresh integration, the statistic (G) against pose errors simulated step by step, and the
 learner recovering a steering gain of 0.7 on the simulated scenario."""
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from online_em_slam.core.config import MotionConfig, NoiseLearningConfig, replace_section
-from online_em_slam.core.em.motion_gains import MotionGains, gain_statistic, transported
-from online_em_slam.core.em.motion_noise import MotionSteps, compound
+from online_em_slam.core.em.noise.motion_gains import MotionGains, gain_statistic, transported
+from online_em_slam.core.em.noise.motion_noise import MotionSteps, compound
 from online_em_slam.core.filter.slam import OnlineEMSlam
 from online_em_slam.core.models.motion import integrate_segments, propagate, scaled_noise
 from online_em_slam.simulation import ScenarioConfig, simulate, slam_config_for
@@ -47,7 +47,7 @@ def test_the_filters_sensitivity_to_the_gains_is_the_finite_difference_of_a_fres
     config = replace_section(config, noise_learning=NoiseLearningConfig(enabled=True, learn=("motion_gains",)))
     slam = OnlineEMSlam(config, initial_pose=scenario.initial_pose)
     slam.add_observations(0.0, scenario.steps[0].observations())
-    start = slam._track_pose.copy()
+    start = slam._motion.pose.copy()
     controls = [(0.1 * k, np.array([3.0, 0.1 + 0.05 * k])) for k in range(1, 9)]
     for k, (t, u) in enumerate(controls):
         slam.add_control(t, u)
@@ -61,7 +61,7 @@ def test_the_filters_sensitivity_to_the_gains_is_the_finite_difference_of_a_fres
         ends = [integrate_segments(replace(config.motion, **{name: 1.0 + h}), start[None], np.zeros((1, 3, 3)),
                                    us, dts)[0][0] for h in (1e-5, -1e-5)]
         expected[:, j] = (ends[0] - ends[1]) / 2e-5
-    np.testing.assert_allclose(slam._track_sensitivity, expected, rtol=1e-5, atol=1e-8)
+    np.testing.assert_allclose(slam._motion.sensitivity, expected, rtol=1e-5, atol=1e-8)
 
 
 def test_transported_is_the_sum_of_phi_times_terms():

@@ -1,4 +1,4 @@
-"""Noise learned online (issue 9; core/em/noise_learning.py, docs/METHOD.md "Noise learned online").
+"""Noise learned online (issue 9; core/em/noise/, docs/METHOD.md "Noise learned online").
 
 Seeded simulations of a few seconds each: data generated with known R, mixture,
 range-dependent range noise and motion noise; the estimator starts 3x too large
@@ -18,11 +18,12 @@ import pytest
 from online_em_slam.core import OnlineEMSlam
 from online_em_slam.core.config import (NoiseLearningConfig, ObservationNoiseConfig, SensorConfig, SlamConfig,
                                         replace_section)
-from online_em_slam.core.em.averages import StochasticAverage, batch_step_size
-from online_em_slam.core.em.motion_noise import MotionSteps, prediction_statistic, ratio_error
-from online_em_slam.core.em.noise_learning import (NoiseLearner, RangeBins, _UsedObservations, map_share,
-                                                map_uncertainty, range_noise_fit)
-from online_em_slam.core.em.serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation
+from online_em_slam.core.em.noise.averages import StochasticAverage, batch_step_size
+from online_em_slam.core.em.noise.motion_noise import MotionSteps, prediction_statistic, ratio_error
+from online_em_slam.core.em.noise.learner import NoiseLearner
+from online_em_slam.core.em.noise.observation import UsedObservations, map_share, map_uncertainty
+from online_em_slam.core.em.noise.range_fit import RangeBins, range_noise_fit
+from online_em_slam.core.em.noise.serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation
 from online_em_slam.core.models.observation import information_noise, noise_covariance
 from online_em_slam.core.types import Observations
 from online_em_slam.evaluation import landmark_pairs_by_id, map_error_split
@@ -176,14 +177,14 @@ def test_an_observations_variance_is_its_likelier_components():
             assert 1.0 / used.scan[2][1] > 1.0                     # the precision factor's would be more
 
 
-def _used_at(innovations, noise) -> _UsedObservations:
+def _used_at(innovations, noise) -> UsedObservations:
     """One particle at the origin whose innovations are ``innovations`` (P, 2), landmarks seen 50 times."""
     nu = np.asarray(innovations, dtype=float)[None]
     P = nu.shape[1]
     data = SimpleNamespace(y=np.tile([10.0, 0.0], (P, 1)), nu=nu, H=np.tile(np.eye(2), (1, P, 1, 1)),
                            weights=np.ones(1))
     R = noise_covariance(noise, data.y[:, 0])
-    return _UsedObservations(data, np.full(P, 50), np.ones(P, dtype=bool), R, np.zeros(3), SensorConfig(), noise)
+    return UsedObservations(data, np.full(P, 50), np.ones(P, dtype=bool), R, np.zeros(3), SensorConfig(), noise)
 
 
 def test_map_share_leaves_R_of_an_innovation_against_the_average_of_earlier_observations():

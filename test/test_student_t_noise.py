@@ -17,7 +17,7 @@ from scipy.special import digamma
 
 from online_em_slam.core import OnlineEMSlam
 from online_em_slam.core.config import AssociationConfig, NoiseLearningConfig, ObservationNoiseConfig, replace_section
-from online_em_slam.core.em.noise_learning import student_t_dof
+from online_em_slam.core.em.noise.observation import student_t_dof
 from online_em_slam.core.filter.association import Gates
 from online_em_slam.core.models.observation import (component_precision_weight, mahalanobis_2d, noise_loglik,
                                                      student_t_weight)

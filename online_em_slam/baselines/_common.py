@@ -70,7 +70,7 @@ class BaselineFilter:
         return True
 
     def add_odometry(self, stamp: float, odom_pose) -> bool:
-        """Apply the body-frame increment from the previous odometry pose (motion.model == "odometry")."""
+        """Apply the body-frame increment from the previous odometry pose (motion.uses_odometry)."""
         usable, increment, dt = self._input.odometry_motion(stamp, odom_pose)
         if not usable:
             return False
@@ -131,7 +131,7 @@ class BaselineFilter:
         if dt > motion.max_prediction_interval:
             self.drops["large_time_step_clipped"] += 1
             dt = motion.max_prediction_interval
-        if dt > 0 and held.held_control is not None and motion.model != "odometry":
+        if dt > 0 and held.held_control is not None and not motion.uses_odometry:
             n, h = prediction_substeps(dt, motion.max_step)
             for _ in range(n):
                 self._predict(held.held_control, h)

@@ -29,8 +29,8 @@ from ..core.filter.association import Gates
 from ..core.models.motion import propagate, step_jitter
 from ..core.models.observation import (inv_det_2x2, innovation, inverse_observation, landmark_jacobian,
                                 noise_loglik, pose_jacobian, predict_observation, sensor_poses)
-from ..core.filter.particles import (effective_sample_size, normalize_log_weights, sample_gaussians,
-                              systematic_resample, weighted_pose_covariance, weighted_pose_mean)
+from ..core.filter.particles import effective_sample_size, normalize_log_weights, sample_gaussians, systematic_resample
+from ..core.weighted import weighted_pose_covariance, weighted_pose_mean
 from ..core.types import LandmarkMap, Observations, PoseEstimate, StepReport
 from ._common import BaselineFilter, LandmarkBook, inverse_observation_jacobians, plan_associations
 

@@ -112,7 +112,7 @@ def batch_estimate(scenario, config: SlamConfig | None = None, n_landmarks: int 
     sensor = config.sensor
     if sensor.offset_x != 0.0 or sensor.offset_y != 0.0:
         raise ValueError("batch_estimate supports sensor.offset_x = offset_y = 0 only")
-    if config.motion.model == "odometry":
+    if config.motion.uses_odometry:
         raise ValueError("batch_estimate needs a control-driven motion model")
     steps = scenario.steps
     if n_landmarks is None and getattr(scenario, "landmarks", None) is not None:

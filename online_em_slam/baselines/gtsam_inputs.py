@@ -113,7 +113,7 @@ class _MotionBook:
             self.start = stamp if self.start is None else self.start
             return
         dt = stamp - held.last_stamp
-        if dt > 0 and held.held_control is not None and self.motion.model != "odometry":
+        if dt > 0 and held.held_control is not None and not self.motion.uses_odometry:
             self._predict(held.held_control, dt)
         held.last_stamp = stamp
         if stamp - self.anchor > self.motion.max_prediction_interval:
@@ -176,7 +176,7 @@ def collect_problem(events, config: SlamConfig, motion_source: str | None = None
     """Pose variables, compounded motion and observations from (kind, stamp, payload[, log_time]) events."""
     config = config.validate()
     if motion_source is None:
-        motion_source = "odom" if config.motion.model == "odometry" else "control"
+        motion_source = "odom" if config.motion.uses_odometry else "control"
     skipped: Counter = Counter()
     book = _MotionBook(config, motion_source, skipped)
     noise = information_noise(config.noise)

@@ -14,10 +14,17 @@ tools can refuse bad values with one message; checks that are not a range
 from __future__ import annotations
 
 import math
-from dataclasses import Field, asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Iterator
 
-MOTION_MODELS = ("bicycle", "acfr", "unicycle", "odometry")
+from .config_fields import ParamInfo, check_fields, check_length, check_range, param, param_info
+from .noise_learning_config import NoiseLearningConfig
+
+# The motion models, by name, and the input each integrates: a held control (speed,
+# steering angle) or (speed, yaw rate), or odometry pose increments.  models/motion.py
+# holds each model's equations in the function of its name.
+MOTION_INPUTS = {"bicycle": "steering", "acfr": "steering", "unicycle": "yaw_rate", "odometry": "odometry"}
+MOTION_MODELS = tuple(MOTION_INPUTS)
 NOISE_MODELS = ("gaussian", "mixture", "student_t")
 SMOOTHERS = ("forward", "paris", "ancestry")
 EM_ALGORITHMS = ("online", "block", "block_averaged")
@@ -26,102 +33,6 @@ M_STEPS = ("complete", "observed")
 
 MIN_JITTER = 1e-9            # smallest motion jitter std (m, rad); see MotionConfig.position_jitter
 INT32_MAX = 2 ** 31 - 1
-
-
-@dataclass(frozen=True)
-class ParamInfo:
-    """What a setting may be, said once: its description and its range or choices.
-
-    ``lo``/``hi`` bound a number (each entry of a tuple), excluded where
-    ``lo_open``/``hi_open``; ``choices`` bound a name (each entry of a tuple of
-    names); ``optional``: None is allowed too.  ``validate`` checks it, and the
-    ROS descriptors, config/online_em_slam.yaml and the offline params-file
-    reader are derived from it (ros/params.py).
-    """
-
-    doc: str
-    lo: float | None = None
-    hi: float | None = None
-    lo_open: bool = False
-    hi_open: bool = False
-    choices: tuple[str, ...] | None = None
-    optional: bool = False
-
-    def interval(self) -> str:
-        """'(0.0, 100.0]': the allowed range as in the error messages."""
-        return f"{'(' if self.lo_open else '['}{self.lo}, {self.hi}{')' if self.hi_open else ']'}"
-
-    def check(self, name: str, value: Any) -> None:
-        """ValueError naming ``name`` and the allowed range or choices if ``value`` is outside."""
-        if value is None and self.optional:
-            return
-        if self.choices is not None:
-            _check_choice(name, value, self.choices)
-        elif self.lo is not None:
-            _check_range(name, value, self.lo, self.hi, self.lo_open, self.hi_open)
-
-
-def param(default: Any, lo: float | None = None, hi: float | None = None, *, doc: str,
-          lo_open: bool = False, hi_open: bool = False, choices: tuple[str, ...] | None = None,
-          optional: bool = False) -> Any:
-    """A dataclass field with its :class:`ParamInfo` in the metadata (key ``"param"``)."""
-    info = ParamInfo(doc, lo, hi, lo_open, hi_open, choices, optional)
-    return field(default=default, metadata={"param": info})
-
-
-def param_info(f: Field) -> ParamInfo:
-    return f.metadata["param"]
-
-
-def check_fields(section: Any, prefix: str, tighter: dict[str, dict[str, Any]] | None = None) -> None:
-    """Every field of ``section`` against its ParamInfo, in field order; a tuple
-    field entry by entry (its length is checked before, by the section).
-
-    ``tighter``: field name -> ParamInfo changes, a range narrowed by another
-    field (one declared, so checked, before it), so the message names the real bound.
-    """
-    for f in fields(section):
-        info = replace(param_info(f), **(tighter or {}).get(f.name, {}))
-        value = getattr(section, f.name)
-        for entry in value if isinstance(f.default, tuple) else (value,):
-            info.check(f"{prefix}.{f.name}", entry)
-
-
-def _check_range(name: str, value: float, low: float, high: float,
-                 low_open: bool = False, high_open: bool = False) -> None:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} = {value!r} is not a number") from None
-    ok = (math.isfinite(number) and (number > low if low_open else number >= low)
-          and (number < high if high_open else number <= high))
-    if not ok:
-        brackets = ("(" if low_open else "[", ")" if high_open else "]")
-        raise ValueError(f"{name} = {value!r} is outside the allowed range {brackets[0]}{low}, {high}{brackets[1]}")
-
-
-def _check_length(name: str, value: Any, length: int | None = None, meaning: str = "") -> tuple:
-    """``value`` as a tuple of ``length`` entries (any non-zero length if None).
-
-    A scalar or a wrong-length list is refused rather than broadcast: numpy would
-    silently spread [1.0] over x, y and yaw, and [1.0, 1.0] fails only at the next
-    reset, long after the parameter was accepted.
-    """
-    try:
-        entries = tuple(value)
-    except TypeError:
-        entries = None
-    if entries is None or (len(entries) != length if length is not None else not entries):
-        expected = f"exactly {length} numbers" if length is not None else "at least one number"
-        raise ValueError(f"{name} = {value!r} must be a list of {expected}{meaning}")
-    return entries
-
-
-def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
-    if value not in choices:
-        raise ValueError(f"{name} = {value!r} is not one of {', '.join(choices)}")
-
-
 _STD = (0.0, 100.0)          # range of a motion noise std
 
 
@@ -181,6 +92,16 @@ class MotionConfig:
     max_yaw_rate: float = param(10.0, 0.0, 1e3, lo_open=True, doc="Yaw rates beyond this (rad/s) are "
                                 "physically impossible: dropped and counted.")
 
+    @property
+    def motion_input(self) -> str:
+        """What the model integrates (MOTION_INPUTS): "steering", "yaw_rate" or "odometry"."""
+        return MOTION_INPUTS[self.model]
+
+    @property
+    def uses_odometry(self) -> bool:
+        """The model integrates odometry increments, not held controls."""
+        return self.motion_input == "odometry"
+
     def validate(self, prefix: str = "motion") -> None:
         check_fields(self, prefix)
 
@@ -236,14 +157,14 @@ class ObservationNoiseConfig:
                                                     "likelihood and the M-step).")
 
     def validate(self, prefix: str = "noise") -> None:
-        weights = _check_length(f"{prefix}.mixture_weights", self.mixture_weights)
-        scales = _check_length(f"{prefix}.mixture_scales", self.mixture_scales)
-        _check_length(f"{prefix}.serial_correlation", self.serial_correlation, 2, " (range, bearing)")
+        weights = check_length(f"{prefix}.mixture_weights", self.mixture_weights)
+        scales = check_length(f"{prefix}.mixture_scales", self.mixture_scales)
+        check_length(f"{prefix}.serial_correlation", self.serial_correlation, 2, " (range, bearing)")
         if len(weights) != len(scales):
             raise ValueError(f"{prefix}.mixture_weights and {prefix}.mixture_scales must have the same, non-zero length")
         check_fields(self, prefix)
         limit = 0.999 * self.sigma_range * self.sigma_bearing
-        _check_range(f"{prefix}.rho", self.rho, -limit, limit)
+        check_range(f"{prefix}.rho", self.rho, -limit, limit)
         if abs(math.fsum(float(w) for w in weights) - 1.0) > 1e-6:
             raise ValueError(f"{prefix}.mixture_weights = {self.mixture_weights} must be non-negative and sum to 1")
 
@@ -262,7 +183,7 @@ class FilterConfig:
                                                          "particle cloud: exactly 3 values (x m, y m, yaw rad).")
 
     def validate(self, prefix: str = "filter") -> None:
-        _check_length(f"{prefix}.initial_pose_std", self.initial_pose_std, 3, " (x, y, yaw)")
+        check_length(f"{prefix}.initial_pose_std", self.initial_pose_std, 3, " (x, y, yaw)")
         check_fields(self, prefix)
 
 
@@ -357,125 +278,6 @@ class AssociationConfig:
 
     def validate(self, prefix: str = "association") -> None:
         check_fields(self, prefix, {"new_landmark_probability": {"lo": self.gate_probability, "lo_open": False}})
-
-
-LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "dof", "range_growth", "serial_correlation",
-                   "motion_scale", "motion_gains")
-
-
-@dataclass
-class NoiseLearningConfig:
-    """Online EM estimation of the noise parameters (docs/METHOD.md "Noise learned online", core/em/noise_learning.py).
-
-    learn: the quantities estimated, a subset of ``LEARNABLE_NOISE``: ``range``
-        (sigma_range), ``bearing`` (sigma_bearing), ``correlation`` (rho),
-        ``mixture`` (weights and outlier scales; only with ``noise.model: mixture``),
-        ``dof`` (the Student-t's degrees of freedom; only with ``noise.model: student_t``),
-        ``range_growth`` (sigma_r(r) = sigma_range + range_growth r; not by
-        default: without range-dependent noise it trades off against
-        sigma_range), ``serial_correlation`` (how alike a landmark's
-        observation errors are from one scan to the next: real detectors repeat
-        their errors, so consecutive observations inform less than independent
-        ones) and ``motion_scale`` (one factor on the whole motion noise
-        covariance).
-    step_size_exponent: gamma_n = n^-exponent (n counts observations) of the
-        observation-noise statistics; below 1 the statistics computed under
-        the first, wrong noise values are forgotten.
-    motion_step_size_exponent: the same for the motion scale's statistic (n
-        counts scans).  That statistic is a prediction error, valid whatever
-        scale the filter used, so there is nothing to forget: 1 averages all
-        of it (below 1 follows a motion noise that changes, e.g. with terrain).
-    warmup_observations / warmup_steps: the learned observation noise is used
-        after this many observations, the motion scale after this many scans.
-    motion_scale_tolerance: ... and once the motion scale's relative standard
-        error is below this: one scan says little about the motion noise, and a
-        few hundred scans' estimate can still be several times off.
-    replay_warmup / max_replay_inputs: the warm-up ran under the configured
-        (possibly wrong) noise, and the map's frame set then stays; once every
-        learned quantity is in use, the estimator restarts at its initial pose
-        and filters the warm-up's inputs (at most ``max_replay_inputs``) again
-        with the learned noise as the starting values, once.
-    motion_window: filter steps over which the pose is predicted open loop for
-        the motion scale's statistic (one step's motion noise is small next to
-        the pose's uncertainty; L steps' is not).
-    min_landmark_observations: observations of a landmark seen fewer times
-        (this one included) are not used: its estimate is still the inverted
-        first observation and its residual says little about R.
-    *_limits: (floor, ceiling) of each learned value; correlation_limit bounds
-        |rho| / (sigma_range sigma_bearing); serial_correlation_limit is the
-        ceiling of the serial correlation (its floor is 0); mixture_weight_limits bound each
-        outlier component's weight.  The limits' ranges keep the learned values
-        inside what ObservationNoiseConfig / MotionConfig accept.
-    """
-
-    enabled: bool = param(False, doc="Learn the noise online by EM (noise_learning.learn); the learned values "
-                          "are used once warmed up and shown on /diagnostics.")
-    learn: tuple[str, ...] = param(("range", "bearing", "correlation", "mixture", "dof", "serial_correlation",
-                                    "motion_scale"),
-                                   choices=LEARNABLE_NOISE, doc="Quantities learned: any of range, bearing, "
-                                   "correlation, mixture (with noise.model mixture), dof (with noise.model "
-                                   "student_t), range_growth, serial_correlation, motion_scale, motion_gains (the "
-                                   "calibration of the motion input: motion.translation_gain, rotation_gain). "
-                                   "To learn nothing set enabled false.")
-    step_size_exponent: float = param(0.7, 0.5, 1.0, lo_open=True, doc="Step size gamma_n = n^-exponent of the "
-                                      "noise statistics.")
-    motion_step_size_exponent: float = param(1.0, 0.5, 1.0, lo_open=True, doc="Step size exponent of the motion "
-                                             "scale's statistic; 1 averages it all (it is valid under any scale).")
-    warmup_observations: int = param(200, 0, 10 ** 9, doc="Observations before the learned observation noise "
-                                     "is used.")
-    warmup_steps: int = param(50, 0, 10 ** 9, doc="Scans (motion statistics) before the learned motion scale "
-                              "is used.")
-    motion_scale_tolerance: float = param(0.5, 0.0, 10.0, lo_open=True, doc="The learned motion scale is used "
-                                          "once its relative standard error is below this (and warmup_steps "
-                                          "have passed): a short run's estimate can be several times off.")
-    replay_warmup: bool = param(True, doc="Once every learned quantity is in use, filter the warm-up's inputs "
-                                "again from the start with the learned noise (once; the pose may jump then).")
-    max_replay_inputs: int = param(100000, 0, 10 ** 7, doc="Inputs kept for the warm-up replay; a longer "
-                                   "warm-up is not replayed.")
-    motion_window: int = param(10, 1, 1000, doc="Filter steps over which the pose is predicted open loop for "
-                               "the motion scale's statistic.")
-    min_landmark_observations: int = param(5, 1, 10 ** 6, doc="Observations of landmarks seen fewer times (this "
-                                           "one included) do not inform R.")
-    sigma_range_limits: tuple[float, float] = param((0.01, 10.0), 0.0, 100.0, lo_open=True, doc="Floor and "
-                                                    "ceiling of the learned sigma_range (m), floor <= ceiling.")
-    sigma_bearing_limits: tuple[float, float] = param((0.001, 0.5), 0.0, math.pi, lo_open=True, doc="Floor and "
-                                                      "ceiling of the learned sigma_bearing (rad), floor <= ceiling.")
-    range_growth_limits: tuple[float, float] = param((0.0, 0.5), 0.0, 1.0, doc="Floor and ceiling of the "
-                                                     "learned range_growth, floor <= ceiling.")
-    correlation_limit: float = param(0.9, 0.0, 0.99, doc="Bound on |rho| / (sigma_range sigma_bearing) when "
-                                     "learned.")
-    serial_correlation_limit: float = param(0.95, 0.0, 0.99, doc="Ceiling of the learned serial_correlation "
-                                            "(each observation informs at least (1 - c) / (1 + c) of an "
-                                            "independent one).")
-    mixture_weight_limits: tuple[float, float] = param((0.001, 0.5), 0.0, 0.5, lo_open=True, doc="Floor and "
-                                                       "ceiling of each learned outlier weight, floor <= ceiling.")
-    mixture_scale_limits: tuple[float, float] = param((2.0, 1000.0), 1.0, 1e6, lo_open=True, doc="Floor and "
-                                                      "ceiling of each learned outlier scale, floor <= ceiling.")
-    dof_limits: tuple[float, float] = param((3.0, 100.0), 0.5, 1e4, doc="Floor and ceiling of the learned "
-                                            "Student-t degrees of freedom, floor <= ceiling.")
-    motion_scale_limits: tuple[float, float] = param((0.01, 100.0), 0.0, 1e4, lo_open=True, doc="Floor and "
-                                                     "ceiling of the learned motion noise scale (factor on the "
-                                                     "motion covariance), floor <= ceiling.")
-
-    motion_gain_limits: tuple[float, float] = param((0.25, 4.0), 0.1, 10.0, doc="Floor and ceiling of the "
-                                                    "learned motion gains (motion.translation_gain, "
-                                                    "rotation_gain), floor <= ceiling.")
-    motion_gain_tolerance: float = param(0.03, 0.0, 1.0, lo_open=True, doc="The learned motion gains are used "
-                                         "once their standard errors are below this (and warmup_steps have "
-                                         "passed).")
-    _LIMITS = ("sigma_range_limits", "sigma_bearing_limits", "range_growth_limits", "mixture_weight_limits",
-               "mixture_scale_limits", "dof_limits", "motion_scale_limits",
-               "motion_gain_limits")
-
-    def validate(self, prefix: str = "noise_learning") -> None:
-        if isinstance(self.learn, str):
-            raise ValueError(f"{prefix}.learn = {self.learn!r} must be a list of names of {', '.join(LEARNABLE_NOISE)}")
-        for name in self._LIMITS:
-            _check_length(f"{prefix}.{name}", getattr(self, name), 2, " (floor, ceiling)")
-        check_fields(self, prefix)
-        for name in self._LIMITS:          # each floor <= its ceiling
-            floor, ceiling = getattr(self, name)
-            _check_range(f"{prefix}.{name}", ceiling, float(floor), param_info(self.__dataclass_fields__[name]).hi)
 
 
 @dataclass

@@ -15,7 +15,7 @@ from ..config import SlamConfig
 from .step import FilterStepData
 from ..mapping.landmarks import LandmarkTable
 from ..models.observation import inverse_observation
-from ..filter.particles import weighted_outer, weighted_sum
+from ..weighted import weighted_outer, weighted_sum
 from .statistics import (STAT_DIM, differing_landmarks, information_covariance, m_step, make_smoother,
                          observation_statistics)
 

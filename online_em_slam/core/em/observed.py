@@ -19,7 +19,8 @@ from .step import FilterStepData
 from ..mapping.landmarks import LandmarkTable
 from ..models.observation import inv_det_2x2, landmark_jacobian, sensor_poses
 from .observed_information import ObservedInformation, StepFactors, motion_residual
-from ..filter.particles import symmetric_inverse_3x3, weighted_pose_mean
+from ..models.gaussian import symmetric_inverse_3x3
+from ..weighted import weighted_pose_mean
 from .statistics import STAT_DIM, unpack
 
 # Under heavy-tailed noise a landmark's first observation cannot be checked against anything:
@@ -105,9 +106,10 @@ class ObservedInformationEM:
         self.block_end = step + 1 + int(np.ceil(em.block_initial_length * self.block_index ** em.block_growth))
         return True
 
-    def restart_pose(self, pose: np.ndarray, pose_std, table: LandmarkTable) -> None:
+    def restart_pose(self, pose: np.ndarray, pose_std, table: LandmarkTable, weights: np.ndarray | None = None) -> None:
         """The filter was re-initialised at ``pose``: fold the open segment in, then
-        restart the key pose without a motion link (ObservedInformation.restart_key)."""
+        restart the key pose without a motion link (ObservedInformation.restart_key).
+        The replaced particles' ``weights`` do not matter: the segment holds the mean pose."""
         self.system.close_segment(table.theta)
         self.system.restart_key(pose, pose_std)
 

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from ..models.angles import wrap_angle
-from ..filter.particles import gaussian_transition_logpdf
+from ..models.gaussian import gaussian_transition_logpdf
 
 if TYPE_CHECKING:
     from ..config import FilterConfig

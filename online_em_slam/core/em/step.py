@@ -69,8 +69,9 @@ class MStep(Protocol):
         filter shifts its particles by it), or None.
         """
 
-    def restart_pose(self, pose: np.ndarray, pose_std, table: LandmarkTable) -> None:
-        """The filter was re-initialised at ``pose`` (no motion since the last step)."""
+    def restart_pose(self, pose: np.ndarray, pose_std, table: LandmarkTable, weights: np.ndarray) -> None:
+        """The filter was re-initialised at ``pose`` (no motion since the last step); ``weights``
+        (N,) are the normalised weights of the particles it replaced."""
 
     def covariances(self, rows: np.ndarray | slice) -> np.ndarray:
         """Landmark covariances (K, 2, 2) for the association gate and the likelihood."""

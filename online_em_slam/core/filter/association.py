@@ -7,6 +7,8 @@ distance of the innovation, S its covariance), (dof + 2) log(1 + d2/dof) +
 log det S for Student-t noise, whose gates are quantiles of d2's own law
 (2 F(2, dof) instead of chi-square(2)).  At most one observation per landmark
 per scan: the pairing is a linear assignment (scipy's Hungarian solver).
+The particle filter's candidates, their moment-matched gates and the merging of
+new landmarks one scan creates twice are at the end.
 """
 from __future__ import annotations
 
@@ -16,10 +18,13 @@ from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
 from ..config import AssociationConfig, ObservationNoiseConfig
-from ..models.observation import innovation, mahalanobis_2d
+from ..models.angles import wrap_angle
+from ..models.observation import innovation, landmark_jacobian, mahalanobis_2d, predict_observation
+from ..weighted import weighted_outer, weighted_pose_mean, weighted_sum
 
 NEW_LANDMARK = -1
 AMBIGUOUS = -2
@@ -146,3 +151,49 @@ def plan_associations(ids: np.ndarray, y: np.ndarray, rows_of_ids, candidates, g
         create_ids.extend([None] * new.size)
     return AssociationPlan(np.concatenate(update_obs).astype(int), np.concatenate(update_rows).astype(int),
                            np.asarray(create_obs, dtype=int), create_ids)
+
+
+# ----------------------------------------------------------------- the particle filter's gates
+def candidate_rows(theta: np.ndarray, mean_sensor: np.ndarray, reach: float) -> np.ndarray:
+    """Rows of the landmarks ``theta`` (M, 2) closer than ``reach`` to the mean sensor position."""
+    if not theta.shape[0]:
+        return np.zeros(0, dtype=int)
+    dist = np.hypot(theta[:, 0] - mean_sensor[0], theta[:, 1] - mean_sensor[1])
+    return np.flatnonzero(dist < reach)
+
+
+def predicted_measurements(theta: np.ndarray, sensor: np.ndarray, w: np.ndarray, landmark_cov: np.ndarray,
+                           config: AssociationConfig, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Moment-matched predicted measurement (K, 2) and innovation covariance (U, K, 2, 2) per
+    (observation, landmark), over particles ``sensor`` (N, 3) with weights ``w`` (N,).
+
+    S = spread of h over particles + H (Sigma_theta + gate margin) H^T + R:
+    pose and map uncertainty both widen the gate (dh/dp = -dh/dtheta, so a
+    position margin enters like map uncertainty).  ``theta`` (K, 2) and
+    ``landmark_cov`` (K, 2, 2) are the candidates', ``R`` (U, 2, 2) the observations' noise.
+    """
+    h = predict_observation(sensor[:, None, :], theta[None])                         # (N, K, 2)
+    mean = weighted_sum(w, h)
+    mean[:, 1] = np.arctan2(w @ np.sin(h[..., 1]), w @ np.cos(h[..., 1]))
+    dev = h - mean[None]
+    dev[..., 1] = wrap_angle(dev[..., 1])
+    spread = weighted_outer(w, dev)
+    H = landmark_jacobian(weighted_pose_mean(sensor, w)[None], theta)                # (K, 2, 2)
+    map_cov = landmark_cov + config.gate_position_std ** 2 * np.eye(2)
+    spread = spread + H @ map_cov @ np.swapaxes(H, -1, -2)
+    spread[:, 1, 1] += config.gate_heading_std ** 2
+    return mean, spread[None] + R[:, None]
+
+
+def merge_close(positions: np.ndarray, obs_idx: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Of new landmark ``positions`` (k, 2) closer than ``radius`` to each other, the earlier is
+    kept: (kept positions, their observation indices).  A k-d tree keeps this O(n log n) in
+    memory and time for a hostile cloud, where an n x n distance matrix would not."""
+    if positions.shape[0] < 2:
+        return positions, obs_idx
+    pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")
+    keep = np.ones(positions.shape[0], dtype=bool)
+    for i, j in pairs[np.argsort(pairs[:, 0], kind="stable")]:
+        if keep[i]:
+            keep[j] = False
+    return positions[keep], obs_idx[keep]

@@ -15,8 +15,9 @@ from collections import Counter
 
 import numpy as np
 
-from ..config import MotionConfig
+from ..config import MotionConfig, SensorConfig
 from ..models.motion import odometry_increment
+from ..types import Observations
 
 # An odometry increment may exceed max_speed * dt by this much (m, rad) before it
 # is implausible: stamps jitter, and odometry sources integrate between messages.
@@ -32,7 +33,6 @@ class MotionInput:
 
     def __init__(self, motion: MotionConfig, drops: Counter, stamp: float | None = None) -> None:
         self.motion = motion
-        self.motion_model = motion.model
         self.drops = drops
         self.reset(stamp)
 
@@ -55,7 +55,7 @@ class MotionInput:
 
     def control(self, stamp: float, control) -> np.ndarray | None:
         """The control (2,) if it can be used at ``stamp``, else None (counted)."""
-        if self.motion_model == "odometry":
+        if self.motion.uses_odometry:
             self.drops["control_ignored_by_odometry_model"] += 1
             return None
         u = np.asarray(control, dtype=float).reshape(-1)
@@ -70,7 +70,7 @@ class MotionInput:
     def _plausible_control(self, u: np.ndarray) -> bool:
         if abs(u[0]) > self.motion.max_speed:
             return False
-        if self.motion_model == "unicycle":
+        if self.motion.motion_input == "yaw_rate":
             return abs(u[1]) <= self.motion.max_yaw_rate
         return abs(u[1]) <= _MAX_STEERING
 
@@ -94,7 +94,7 @@ class MotionInput:
                 return self._implausible(pose, stamp)
         self._implausible_odometry = 0
         self.last_odometry, self._last_odometry_stamp = pose[:3].copy(), float(stamp)
-        return True, increment if self.motion_model == "odometry" else None
+        return True, increment if self.motion.uses_odometry else None
 
     def odometry_motion(self, stamp: float, odom_pose) -> tuple[bool, np.ndarray | None, float]:
         """:meth:`odometry` plus the time since the last processed input, the step the
@@ -120,3 +120,26 @@ class MotionInput:
         self._implausible_odometry = 0
         self.last_odometry, self._last_odometry_stamp = pose[:3].copy(), float(stamp)
         return True, None
+
+
+def usable_observations(obs: Observations, sensor: SensorConfig, cap: int) -> tuple[np.ndarray, dict[str, int]]:
+    """(mask of the observations an estimator uses, counts of the others by reason).
+
+    Usable: finite, range >= 0, valid per-point stds, range within [min_range, max_range];
+    of more than ``cap`` usable points (a cloud far beyond any sensor's count would cost
+    memory and time in the association) the first ``cap`` are kept, the rest counted.
+    """
+    finite = np.isfinite(obs.ranges) & np.isfinite(obs.bearings)
+    valid = finite & (obs.ranges >= 0)
+    std_ok = obs.valid_std()
+    in_range = valid & std_ok & (obs.ranges >= max(sensor.min_range, 0.0)) & (obs.ranges <= sensor.max_range)
+    dropped: dict[str, int] = {}
+    for reason, mask in (("invalid_observation", ~valid), ("invalid_std", valid & ~std_ok),
+                         ("observation_out_of_range", valid & std_ok & ~in_range)):
+        if mask.any():
+            dropped[reason] = int(mask.sum())
+    if in_range.sum() > cap:
+        beyond = np.flatnonzero(in_range)[cap:]
+        in_range[beyond] = False
+        dropped["too_many_observations"] = int(beyond.size)
+    return in_range, dropped

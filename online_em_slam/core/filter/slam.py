@@ -14,51 +14,27 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..models import motion as motion_models
 from ..models.angles import wrap_angle
-from .association import Gates, plan_associations
+from .association import Gates, candidate_rows, merge_close, plan_associations, predicted_measurements
 from ..config import SlamConfig
 from ..em.complete import CompleteDataEM
 from ..em.observed import ObservedInformationEM
 from ..em.step import FilterStepData, MStep
-from .inputs import MotionInput
+from .inputs import MotionInput, usable_observations
+from ..mapping import mapfile, persistence
 from ..mapping.landmarks import LandmarkTable
-from ..em.noise_learning import NoiseLearner
-from ..models.observation import (component_precision_weight, information_noise, innovation, inv_det_2x2,
-                                  inverse_observation, landmark_jacobian, noise_covariance, noise_loglik,
-                                  predict_observation, sensor_poses)
-from .particles import (effective_sample_size, normalize_log_weights, sample_gaussians,
-                        systematic_resample, weighted_outer, weighted_pose_covariance,
-                        weighted_pose_mean, weighted_sum)
+from ..em.noise.learner import NoiseLearner
+from ..models.observation import information_noise, inverse_observation, noise_covariance, sensor_poses
+from .observation_terms import ObservationTerms, observation_terms
+from .prediction import PendingMotion
+from .warmup import WarmupReplay
+from .particles import effective_sample_size, normalize_log_weights, sample_gaussians, systematic_resample
+from ..weighted import weighted_pose_covariance, weighted_pose_mean
 from ..types import LandmarkMap, Observations, PoseEstimate, StepReport
-
-MAP_FORMAT_VERSION = 1
-
-
-@dataclass
-class ObservationTerms:
-    """Per-scan observation terms under theta_{t-1}, N particles, P associated observations.
-
-    y (P, 2), R (P, 2, 2), nu (N, P, 2) innovations, H (N, P, 2, 2) = dh/dtheta,
-    precision (N, P, 2, 2) responsibility-weighted R^-1, log_likelihood (N,).
-    """
-
-    y: np.ndarray
-    R: np.ndarray
-    nu: np.ndarray
-    H: np.ndarray
-    precision: np.ndarray
-    log_likelihood: np.ndarray
-
-    @classmethod
-    def empty(cls, n: int) -> "ObservationTerms":
-        return cls(np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros((n, 0, 2)), np.zeros((n, 0, 2, 2)),
-                   np.zeros((n, 0, 2, 2)), np.zeros(n))
 
 
 def make_m_step(config: SlamConfig, initial_pose: np.ndarray, rng: np.random.Generator) -> MStep:
@@ -80,6 +56,11 @@ class OnlineEMSlam:
 
     #: Lists that only grow, which a rollback (pipeline/rollback.py) shares instead of copying.
     append_only_lists = ("_warmup_log",)
+
+    @property
+    def _warmup_log(self) -> list | None:
+        """The warm-up's inputs kept for the replay (None: none kept), owned by warmup.py."""
+        return self._warmup.inputs
 
     def __init__(self, config: SlamConfig | None = None, initial_pose=(0.0, 0.0, 0.0),
                  stamp: float | None = None, m_step_factory=None) -> None:
@@ -106,9 +87,7 @@ class OnlineEMSlam:
         self._log_w = np.full(n, -np.log(n))
         self._pred_mean = self._particles.copy()
         self._pred_cov = np.zeros((n, 3, 3))
-        self._reset_track(pose)
-        self._pending_controls: list[np.ndarray] = []
-        self._pending_dts: list[float] = []
+        self._motion = PendingMotion(pose)       # queued segments and the mean pose's track (prediction.py)
         self._resample_pending = False
         self._input = MotionInput(cfg.motion, self.drops, stamp)
         self._anchor_time: float | None = stamp
@@ -116,12 +95,10 @@ class OnlineEMSlam:
         self._ess = float(n)
         self._map = LandmarkTable()
         self._m_step: MStep = self._m_step_factory(cfg, pose, self._rng)
-        self._noise = NoiseLearner(cfg)          # learned noise (noise_learning.py); configured until warm
-        # The warm-up's inputs, filtered again once the learned noise is in use (_replay_warmup).
+        self._noise = NoiseLearner(cfg)          # learned noise (em/noise/learner.py); configured until warm
+        # The warm-up's inputs, filtered again once the learned noise is in use (warmup.py).
         replay = cfg.noise_learning.replay_warmup and bool(self._noise.learn)
-        self._warmup_log: list | None = [] if replay else None
-        self._warmup_start = (pose.copy(), stamp)
-        self._warmup_replayed = False
+        self._warmup = WarmupReplay(replay, cfg.noise_learning.max_replay_inputs, (pose.copy(), stamp))
 
     def start_new_pass(self, initial_pose=None, stamp: float | None = None) -> None:
         """Prepare another pass over the same data: batch EM by repeated passes.
@@ -140,7 +117,7 @@ class OnlineEMSlam:
             saved[name] = np.zeros_like(saved[name])
         self.reset(initial_pose, stamp)
         self._restore_map(saved)
-        self._warmup_log = None
+        self._warmup.discard()
 
     def set_pose(self, pose, std=None) -> None:
         """Put the robot at ``pose`` (an initial-pose message, a relocalisation after
@@ -152,20 +129,18 @@ class OnlineEMSlam:
             raise ValueError(f"set_pose needs a finite (x, y, yaw) and 3 finite stds, got {pose} and {std}")
         self._flush_motion()
         weights, _ = normalize_log_weights(self._log_w)
-        restart = getattr(self._m_step, "restart_pose", None)
-        if isinstance(self._m_step, CompleteDataEM):
+        restart = getattr(self._m_step, "restart_pose", None)      # a plugged-in map update may have none
+        if restart is not None:
             restart(pose, std, self._map, weights)
-        elif restart is not None:
-            restart(pose, std, self._map)
         n = self._particles.shape[0]
         particles = pose + self._rng.standard_normal((n, 3)) * np.abs(std)
         particles[:, 2] = wrap_angle(particles[:, 2])
         self._particles, self._log_w = particles, np.full(n, -np.log(n))
         self._pred_mean, self._pred_cov = particles.copy(), np.zeros((n, 3, 3))
-        self._reset_track(pose)
+        self._motion.reset_track(pose)
         self._resample_pending, self._ess = False, float(n)
         self._anchor_time = self._input.last_stamp
-        self._warmup_log = None          # the inputs so far no longer lead to this state
+        self._warmup.discard()           # the inputs so far no longer lead to this state
 
     def restart_time_line(self, pose, std=None) -> None:
         """A confirmed jump of the time line (a bag played in a loop, a clock set back):
@@ -193,53 +168,14 @@ class OnlineEMSlam:
         if dt > self.config.motion.max_step:
             self.drops["large_time_step_clipped"] += 1
             dt = self.config.motion.max_step
-        self._pending_controls.append(control)
-        self._pending_dts.append(dt)
+        self._motion.queue(control, dt)
 
     def _flush_motion(self) -> None:
-        """Compound the queued control segments into the transition (T) in one pass.
-
-        Control messages (40 Hz on the KTH ute) outnumber scans; integrating
-        them together when a scan or a pose query needs them costs one
-        vectorised call instead of one per message (motion.integrate_segments).
-        """
-        if not self._pending_dts:
-            return
-        controls, dts = np.array(self._pending_controls), np.array(self._pending_dts)
-        # The mean pose's own transition (f, F, Q: the observed M-step's
-        # linearisation track) rides along as one more row of the same call.
-        poses = np.vstack([self._pred_mean, self._track_pose])
-        covs = np.concatenate([self._pred_cov, self._track_cov[None]])
-        mean, cov, F = motion_models.integrate_segments(self._noise.motion_config(), poses, covs, controls, dts,
-                                                        with_jacobian=True)
-        sensitivity = self._track_gain_sensitivity(controls, dts, mean[-1], F[-1])
-        self._pending_controls.clear()
-        self._pending_dts.clear()
-        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov)) and np.all(np.isfinite(sensitivity))):
-            # Never let one step poison the estimate: keep the last finite state.
-            self.drops["non_finite_prediction"] += 1
-            return
-        mean[:, 2] = wrap_angle(mean[:, 2])
-        self._pred_mean, self._pred_cov = mean[:-1], cov[:-1]
-        self._track_pose, self._track_cov = mean[-1], cov[-1]
-        self._track_jacobian = F[-1] @ self._track_jacobian
-        self._track_sensitivity = sensitivity
-
-    def _track_gain_sensitivity(self, controls: np.ndarray, dts: np.ndarray, moved: np.ndarray,
-                                jacobian: np.ndarray) -> np.ndarray:
-        """d track mean / d (translation_gain, rotation_gain) since the last filter step (3, 2):
-        the earlier segments' carried by this flush's Jacobian, plus this flush's, by a forward
-        difference of the motion integration (``moved``: the track's mean after it)."""
-        if not self._noise.learns_gains:
-            return self._track_sensitivity
-        config, pose = self._noise.motion_config(), self._track_pose[None]
-        D = np.empty((3, 2))
-        for j, name in enumerate(("translation_gain", "rotation_gain")):
-            step = 1e-6 * getattr(config, name)
-            nudged = replace(config, **{name: getattr(config, name) + step})
-            D[:, j] = (motion_models.integrate_segments(nudged, pose, np.zeros((1, 3, 3)), controls, dts)[0][0]
-                       - moved) / step
-        return jacobian @ self._track_sensitivity + D
+        """Compound the queued control segments into the transition (T) in one pass (prediction.py)."""
+        moved = self._motion.flush(self._noise.motion_config(), self._noise.learns_gains, self._pred_mean,
+                                   self._pred_cov, self.drops)
+        if moved is not None:
+            self._pred_mean, self._pred_cov = moved
 
     def _advance_to(self, stamp: float) -> None:
         """Integrate the held control up to ``stamp`` (zero-order hold)."""
@@ -248,7 +184,7 @@ class OnlineEMSlam:
             held.last_stamp = self._anchor_time = stamp
             return
         dt = stamp - held.last_stamp
-        if dt > 0 and held.held_control is not None and self.config.motion.model != "odometry":
+        if dt > 0 and held.held_control is not None and not self.config.motion.uses_odometry:
             self._predict(held.held_control, dt)
         held.last_stamp = stamp
         if stamp - self._anchor_time > self.config.motion.max_prediction_interval:
@@ -257,7 +193,7 @@ class OnlineEMSlam:
 
     def add_control(self, stamp: float, control) -> bool:
         """Control u = (speed, steering angle or yaw rate) valid from ``stamp`` on."""
-        self._log_warmup("add_control", stamp, control)
+        self._warmup.record("add_control", stamp, control)
         u = self._input.control(stamp, control)
         if u is None:
             return False
@@ -267,7 +203,7 @@ class OnlineEMSlam:
 
     def add_odometry(self, stamp: float, odom_pose) -> bool:
         """Odometry-frame pose (x, y, yaw); the increment since the previous one drives motion."""
-        self._log_warmup("add_odometry", stamp, odom_pose)
+        self._warmup.record("add_odometry", stamp, odom_pose)
         usable, increment, dt = self._input.odometry_motion(stamp, odom_pose)
         if not usable:
             return False
@@ -279,7 +215,7 @@ class OnlineEMSlam:
     def add_observations(self, stamp: float, observations: Observations) -> StepReport:
         """Run one filter step and EM update with a scan of range-bearing observations."""
         started = time.perf_counter()
-        self._log_warmup("add_observations", stamp, observations)
+        self._warmup.record("add_observations", stamp, observations)
         report = StepReport(n_observations=len(observations))
         if not self._input.accept_stamp(stamp):
             report.dropped["out_of_order"] = len(observations) or 1
@@ -287,59 +223,19 @@ class OnlineEMSlam:
         self._advance_to(float(stamp))
         observations = self._valid_observations(observations, report)
         self._filter_step(observations, report)
-        if self._warmup_log is not None and self._noise.all_in_use:
-            self._replay_warmup()
+        if self._warmup.due(self._noise):
+            self._warmup.replay(self)
         report.ess = self._ess
         report.duration = time.perf_counter() - started
         return report
 
-    def _log_warmup(self, method: str, stamp: float, value) -> None:
-        log = self._warmup_log
-        if log is None:
-            return
-        if len(log) >= self.config.noise_learning.max_replay_inputs:
-            self._warmup_log = None                 # too long a warm-up to keep: no replay
-            return
-        log.append((method, stamp, value))
-
-    def _replay_warmup(self) -> None:
-        """The warm-up ran under the configured noise, and the map's frame set then would
-        stay: restart at the initial pose and filter the warm-up's inputs again, starting
-        from the learned noise (docs/METHOD.md, "Noise learned online").  Once."""
-        # The motion scale's estimate, not the one in use: that one moves towards the
-        # estimate at a bounded rate and would filter the replay's first steps at the start value.
-        log, noise = self._warmup_log, self._noise.noise_config()
-        scale, gains = self._noise.scale_estimate, self._noise.gains_known()
-        drops = dict(self.drops)                    # the replayed inputs were counted already
-        self.reset(*self._warmup_start)
-        self._warmup_log = None
-        self._noise.start_from(noise, scale, gains)
-        for method, stamp, value in log:
-            getattr(self, method)(stamp, value)
-        self.drops.clear()
-        self.drops.update(drops)
-        self._warmup_replayed = True
-
     def _valid_observations(self, obs: Observations, report: StepReport) -> Observations:
-        sensor = self.config.sensor
-        finite = np.isfinite(obs.ranges) & np.isfinite(obs.bearings)
-        valid = finite & (obs.ranges >= 0)
-        std_ok = obs.valid_std()
-        in_range = valid & std_ok & (obs.ranges >= max(sensor.min_range, 0.0)) & (obs.ranges <= sensor.max_range)
-        for reason, mask in (("invalid_observation", ~valid), ("invalid_std", valid & ~std_ok),
-                             ("observation_out_of_range", valid & std_ok & ~in_range)):
-            if mask.any():
-                report.dropped[reason] = report.dropped.get(reason, 0) + int(mask.sum())
-                self.drops[reason] += int(mask.sum())
-        cap = self.config.association.max_observations_per_scan
-        if in_range.sum() > cap:
-            # A cloud far beyond any sensor's count would cost memory and time in the
-            # association: the first ``cap`` usable points are kept, the rest counted.
-            beyond = np.flatnonzero(in_range)[cap:]
-            in_range[beyond] = False
-            report.dropped["too_many_observations"] = report.dropped.get("too_many_observations", 0) + beyond.size
-            self.drops["too_many_observations"] += int(beyond.size)
-        return obs.subset(in_range) if not in_range.all() else obs
+        """The scan's usable observations (inputs.usable_observations); the others counted."""
+        keep, dropped = usable_observations(obs, self.config.sensor, self.config.association.max_observations_per_scan)
+        for reason, count in dropped.items():
+            report.dropped[reason] = report.dropped.get(reason, 0) + count
+            self.drops[reason] += count
+        return obs.subset(keep) if not keep.all() else obs
 
     # ------------------------------------------------------------------ map rows
     def _add_landmarks(self, positions: np.ndarray, ids: np.ndarray) -> np.ndarray:
@@ -367,7 +263,7 @@ class OnlineEMSlam:
         log_w = log_prior + terms.log_likelihood
         weights = self._normalise(log_w)
         data = self._step_data(particles, weights, prior_weights, ancestors, trans_cov, rows, terms, sensor)
-        self._noise.update(data, self._map.n_obs[rows], self._map.ids[rows])   # noise statistics (noise_learning.py)
+        self._noise.update(data, self._map.n_obs[rows], self._map.ids[rows])   # noise statistics (em/noise/)
         pose_correction = self._m_step.update(data, self._map)
         self._commit(particles, weights, pose_correction)
         report.n_associated = int(rows.size)
@@ -387,43 +283,26 @@ class OnlineEMSlam:
         obs_idx, rows = self._associate(obs, sensor, prior_weights, report)
         return rows, obs_idx
 
-    def _observation_terms(self, obs, obs_idx, rows, sensor) -> "ObservationTerms":
-        """Innovations, Jacobians, likelihood and responsibilities under theta_{t-1}."""
-        n = sensor.shape[0]
+    def _observation_terms(self, obs, obs_idx, rows, sensor) -> ObservationTerms:
+        """Innovations, Jacobians, likelihood and responsibilities under theta_{t-1}; counts the observations.
+
+        The likelihood weighs with the landmarks seen often enough; with
+        ``inflate_with_map_uncertainty`` its innovation covariance carries H Sigma_k H^T.
+        """
         if not rows.size:
-            return ObservationTerms.empty(n)
+            return ObservationTerms.empty(sensor.shape[0])
+        cfg = self.config
         y = np.stack([obs.ranges[obs_idx], obs.bearings[obs_idx]], axis=-1)            # (P, 2)
         noise = information_noise(self._noise.noise_config())      # serially correlated errors inform less
         R = noise_covariance(noise, obs.ranges[obs_idx],
                              None if obs.range_std is None else obs.range_std[obs_idx],
                              None if obs.bearing_std is None else obs.bearing_std[obs_idx])
-        theta_bar = self._map.theta[rows]                                               # (P, 2)
-        nu = innovation(np.broadcast_to(y, (n,) + y.shape).copy(),
-                        predict_observation(sensor[:, None, :], theta_bar[None]))        # (N, P, 2)
-        H = landmark_jacobian(sensor[:, None, :], theta_bar[None])                      # (N, P, 2, 2)
-        log_likelihood = self._weighting_loglik(noise, rows, nu, H, R)
-        _, resp = noise_loglik(noise, nu, np.broadcast_to(R, H.shape))
-        R_inv, _ = inv_det_2x2(R)
-        precision = R_inv[None] * component_precision_weight(noise, resp)[..., None, None]
-        self._map.n_obs[rows] += 1
-        return ObservationTerms(y, R, nu, H, precision, log_likelihood)
-
-    def _weighting_loglik(self, noise, rows, nu, H, R) -> np.ndarray:
-        """log g(y | xi^i, theta) summed over the landmarks seen often enough to weight (N,).
-
-        With ``inflate_with_map_uncertainty`` the innovation covariance also carries
-        the landmark's uncertainty, H Sigma_k H^T.
-        """
-        cfg = self.config
         weighting = self._map.n_obs[rows] >= cfg.association.min_observations_for_weighting
-        if not weighting.any():
-            return np.zeros(nu.shape[0])
-        S = np.broadcast_to(R, H.shape).copy()
-        if cfg.em.inflate_with_map_uncertainty:
-            cov = self._m_step.covariances(rows)
-            S += H @ cov[None] @ np.swapaxes(H, -1, -2)
-        loglik, _ = noise_loglik(noise, nu, S)
-        return np.where(weighting[None, :], loglik, 0.0).sum(axis=1)
+        inflate = cfg.em.inflate_with_map_uncertainty and weighting.any()
+        terms = observation_terms(y, R, self._map.theta[rows], sensor, noise, weighting,
+                                  self._m_step.covariances(rows) if inflate else None)
+        self._map.n_obs[rows] += 1
+        return terms
 
     def _normalise(self, log_w: np.ndarray) -> np.ndarray:
         weights, _ = normalize_log_weights(log_w)
@@ -437,10 +316,10 @@ class OnlineEMSlam:
             step=self._step, particles=particles, weights=weights, log_weights_prev=self._log_w,
             prior_weights=prior_weights, ancestors=ancestors, transition_means=self._pred_mean,
             transition_covs=trans_cov, rows=rows, y=terms.y, R=terms.R, sensor=sensor, nu=terms.nu,
-            H=terms.H, precision=terms.precision, motion_mean=self._track_pose,
-            motion_jacobian=self._track_jacobian,
-            motion_cov=self._track_cov * self._noise.motion_scale() + motion_models.step_jitter(self.config.motion),
-            motion_gain_sensitivity=self._track_sensitivity)
+            H=terms.H, precision=terms.precision, motion_mean=self._motion.pose,
+            motion_jacobian=self._motion.jacobian,
+            motion_cov=self._motion.cov * self._noise.motion_scale() + motion_models.step_jitter(self.config.motion),
+            motion_gain_sensitivity=self._motion.sensitivity)
 
     def _commit(self, particles, weights, pose_correction) -> None:
         """New anchors for the next transition, moved by the M-step's pose correction."""
@@ -451,18 +330,11 @@ class OnlineEMSlam:
         self._log_w = np.log(np.maximum(weights, 1e-300))
         self._pred_mean = particles.copy()
         self._pred_cov = np.zeros_like(self._pred_cov)
-        self._reset_track(weighted_pose_mean(particles, weights))
+        self._motion.reset_track(weighted_pose_mean(particles, weights))
         self._ess = effective_sample_size(weights)
         self._resample_pending = self._ess < self.config.filter.resample_threshold * particles.shape[0]
         self._anchor_time = self._input.last_stamp
         self._step += 1
-
-    def _reset_track(self, pose: np.ndarray) -> None:
-        """The weighted mean pose and its own transition: the observed M-step's linearisation track."""
-        self._track_pose = pose.copy()
-        self._track_jacobian = np.eye(3)
-        self._track_cov = np.zeros((3, 3))
-        self._track_sensitivity = np.zeros((3, 2))
 
     # ------------------------------------------------------------------ association
     def _associate(self, obs: Observations, sensor: np.ndarray, prior_weights: np.ndarray,
@@ -473,10 +345,16 @@ class OnlineEMSlam:
         y = np.stack([obs.ranges, obs.bearings], axis=-1)
 
         def candidates(unknown):
-            rows = self._candidate_rows(mean_sensor)
+            noise = self._noise.noise_config()
+            reach = self.config.sensor.max_range + 5.0 * noise.sigma_range + 5.0
+            rows = candidate_rows(self._map.theta, mean_sensor, reach)
             if not rows.size:
                 return rows, np.zeros((0, 2)), np.zeros((unknown.size, 0, 2, 2))
-            return (rows,) + self._predicted_measurements(sensor, w, rows, obs, unknown)
+            R = noise_covariance(noise, obs.ranges[unknown],
+                                 None if obs.range_std is None else obs.range_std[unknown],
+                                 None if obs.bearing_std is None else obs.bearing_std[unknown])
+            return (rows,) + predicted_measurements(self._map.theta[rows], sensor, w, self._m_step.covariances(rows),
+                                                    self.config.association, R)
 
         def drop(reason, n):
             if n > 0:
@@ -499,7 +377,7 @@ class OnlineEMSlam:
         """
         given = np.array([i is not None for i in plan.create_ids], dtype=bool)
         positions = inverse_observation(mean_sensor[None], y[plan.create_obs]).reshape(-1, 2)
-        fresh_pos, fresh_obs = self._dedupe_new(positions[~given], plan.create_obs[~given])
+        fresh_pos, fresh_obs = self._merge_new(positions[~given], plan.create_obs[~given])
         ids = [i for i in plan.create_ids if i is not None]
         ids += self._map.next_ids(len(fresh_obs), ids)
         plan.create_obs = np.concatenate([plan.create_obs[given], fresh_obs]).astype(int)
@@ -510,54 +388,14 @@ class OnlineEMSlam:
             return np.zeros(0, dtype=int)
         return self._add_landmarks(positions[:room], np.array(ids[:room]))
 
-    def _dedupe_new(self, positions: np.ndarray, obs_idx: np.ndarray):
+    def _merge_new(self, positions: np.ndarray, obs_idx: np.ndarray):
         """Two unexplained observations of one scan closer than twice the range noise make
-        one landmark (the earlier is kept).  A k-d tree keeps this O(n log n) in memory
-        and time for a hostile cloud, where the n x n distance matrix was not."""
-        if positions.shape[0] < 2:
-            return positions, obs_idx
+        one landmark (association.merge_close); the merged ones are counted."""
         radius = 2.0 * self._noise.noise_config().sigma_range
-        pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")
-        keep = np.ones(positions.shape[0], dtype=bool)
-        for i, j in pairs[np.argsort(pairs[:, 0], kind="stable")]:
-            if keep[i]:
-                keep[j] = False
-        dropped = int((~keep).sum())
-        if dropped:
-            self.drops["merged_new_landmark"] += dropped
-        return positions[keep], obs_idx[keep]
-
-    def _candidate_rows(self, mean_sensor: np.ndarray) -> np.ndarray:
-        theta = self._map.theta
-        if not theta.shape[0]:
-            return np.zeros(0, dtype=int)
-        reach = self.config.sensor.max_range + 5.0 * self._noise.noise_config().sigma_range + 5.0
-        dist = np.hypot(theta[:, 0] - mean_sensor[0], theta[:, 1] - mean_sensor[1])
-        return np.flatnonzero(dist < reach)
-
-    def _predicted_measurements(self, sensor, w, rows, obs: Observations, unknown):
-        """Moment-matched predicted measurement and innovation covariance per (obs, landmark).
-
-        S = spread of h over particles + H (Sigma_theta + gate margin) H^T + R:
-        pose and map uncertainty both widen the gate (dh/dp = -dh/dtheta, so a
-        position margin enters like map uncertainty).
-        """
-        theta = self._map.theta[rows]
-        h = predict_observation(sensor[:, None, :], theta[None])                         # (N, K, 2)
-        mean = weighted_sum(w, h)
-        mean[:, 1] = np.arctan2(w @ np.sin(h[..., 1]), w @ np.cos(h[..., 1]))
-        dev = h - mean[None]
-        dev[..., 1] = wrap_angle(dev[..., 1])
-        spread = weighted_outer(w, dev)
-        H = landmark_jacobian(weighted_pose_mean(sensor, w)[None], theta)                # (K, 2, 2)
-        assoc = self.config.association
-        map_cov = self._m_step.covariances(rows) + assoc.gate_position_std ** 2 * np.eye(2)
-        spread = spread + H @ map_cov @ np.swapaxes(H, -1, -2)
-        spread[:, 1, 1] += assoc.gate_heading_std ** 2
-        R = noise_covariance(self._noise.noise_config(), obs.ranges[unknown],
-                             None if obs.range_std is None else obs.range_std[unknown],
-                             None if obs.bearing_std is None else obs.bearing_std[unknown])
-        return mean, spread[None] + R[:, None]
+        kept_pos, kept_obs = merge_close(positions, obs_idx, radius)
+        if kept_obs.size < obs_idx.size:
+            self.drops["merged_new_landmark"] += int(obs_idx.size - kept_obs.size)
+        return kept_pos, kept_obs
 
     def _prune_tentative(self) -> int:
         assoc = self.config.association
@@ -577,8 +415,8 @@ class OnlineEMSlam:
         return PoseEstimate(self._input.last_stamp, mean, cov)
 
     def learned_noise(self) -> dict:
-        """Noise values learned online (noise_learning.py): estimates, counts, and whether in use."""
-        return {**self._noise.learned(), "warmup_replayed": self._warmup_replayed}
+        """Noise values learned online (em/noise/learner.py): estimates, counts, and whether in use."""
+        return {**self._noise.learned(), "warmup_replayed": self._warmup.replayed}
 
     def learned_noise_parameters(self) -> dict:
         """The noise in use as flat node parameters (noise.*, motion.* stds), for a parameter file."""
@@ -602,38 +440,22 @@ class OnlineEMSlam:
     # ------------------------------------------------------------------ persistence
     def _m_step_arrays(self) -> dict[str, np.ndarray]:
         """What the map file holds: the landmark table and the M-step's per-landmark state."""
-        table = self._map
-        arrays = {"theta": table.theta, "ids": table.ids, "n_obs": table.n_obs, "confirmed": table.confirmed}
-        arrays.update(self._m_step.saved_arrays())
-        return {name: np.array(value) for name, value in arrays.items()}
+        return persistence.map_arrays(self._map, self._m_step)
 
     def _restore_map(self, arrays: dict[str, np.ndarray]) -> None:
         """Rebuild the landmark table and the M-step state from :meth:`_m_step_arrays` output."""
-        m = arrays["theta"].shape[0]
-        self._map.add(np.array(arrays["theta"]), np.array(arrays["ids"]), 0)
-        self._map.n_obs[:] = arrays["n_obs"]
-        self._map.confirmed[:] = arrays["confirmed"]
-        self._map.created[:] = np.zeros(m, dtype=np.int64)
-        self._m_step.restore(arrays, self._map.theta)
+        persistence.restore_map(self._map, self._m_step, arrays)
 
     def _restore_noise(self, arrays: dict[str, np.ndarray]) -> None:
         """The learned noise of a map file becomes the learner's starting point (when
         learning is on and the file's mixture has the configured number of components)."""
-        if "noise" not in arrays:
-            return
-        weights, scales = arrays["noise_mixture"]
-        configured = self.config.noise
-        if len(weights) != len(configured.mixture_weights):
+        try:
+            saved = persistence.saved_noise(arrays, self.config.noise)
+        except ValueError:
             self.drops["map_noise_mismatch"] += 1      # another noise model: keep the configured one
             return
-        sigma_r, growth, sigma_b, rho, scale = (float(v) for v in arrays["noise"])
-        noise = replace(configured, sigma_range=sigma_r, range_growth=growth, sigma_bearing=sigma_b, rho=rho,
-                        mixture_weights=tuple(map(float, weights)), mixture_scales=tuple(map(float, scales)))
-        if "noise_dof" in arrays:
-            noise = replace(noise, dof=float(arrays["noise_dof"]))
-        if "noise_serial" in arrays:
-            noise = replace(noise, serial_correlation=tuple(float(v) for v in arrays["noise_serial"]))
-        self._noise.start_from(noise, scale)       # the file has no motion gains: they are learned again
+        if saved is not None:
+            self._noise.start_from(*saved)             # the file has no motion gains: they are learned again
 
     def save_map(self, path: str) -> None:
         """Write map, statistics, counts and pose atomically (core/mapping/mapfile.py).
@@ -641,7 +463,6 @@ class OnlineEMSlam:
         The values are validated first: a non-finite estimate never replaces a good
         file.  The directory must exist (callers decide where files may be created).
         """
-        from ..mapping import mapfile  # noqa: PLC0415
         data = self._m_step_arrays()
         data["pose"] = self.pose().mean
         data.update(self._noise.saved_values() or {})
@@ -653,7 +474,6 @@ class OnlineEMSlam:
         The file is validated completely before the state is touched; on any error
         (MapFileError, a ValueError naming the file) the estimate is left unchanged.
         """
-        from ..mapping import mapfile  # noqa: PLC0415
         loaded = mapfile.read_map(path, max_landmarks=self.config.association.max_landmarks)
         pose = loaded["pose"].copy()
         pose[2] = wrap_angle(pose[2])
@@ -664,7 +484,7 @@ class OnlineEMSlam:
             self.reset(pose if restore_pose else None, self._input.last_stamp)
             self._restore_map(loaded)
             self._restore_noise(loaded)
-            self._warmup_log = None
+            self._warmup.discard()
         except BaseException:
             self.__dict__.clear()
             self.__dict__.update(snapshot)

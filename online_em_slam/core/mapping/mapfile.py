@@ -26,9 +26,10 @@ from typing import Callable
 
 import numpy as np
 
-from ..em.statistics import STAT_DIM
-
 FORMAT_VERSION = 1
+# Width of a landmark's stored statistics: the complete-data statistics (A00, A01, A11, b0, b1)
+# of em/statistics.py, in which every M-step's ``saved_arrays`` writes its landmarks' information.
+STATS_WIDTH = 5
 # Refuse files claiming more rows than this before reading their data: a header can
 # declare any shape, and the data would be allocated first and checked later.
 MAX_LANDMARKS = 1_000_000
@@ -42,13 +43,13 @@ ROW_FIELDS = {
     "inv_n": ((), "float"),
     "n_obs": ((), "count"),
     "confirmed": ((), "flag"),
-    "stats": ((STAT_DIM,), "float"),
+    "stats": ((STATS_WIDTH,), "float"),
     "spread": ((2, 2), "float"),
-    "avg_stats": ((STAT_DIM,), "float"),
+    "avg_stats": ((STATS_WIDTH,), "float"),
     "avg_count": ((), "count"),
 }
 _OTHER_FIELDS = {"version": (), "pose": (3,)}
-# Optional: the noise in use when learned online (noise_learning.py), restored on load:
+# Optional: the noise in use when learned online (core/em/noise/learner.py), restored on load:
 # noise = (sigma_range, range_growth, sigma_bearing, rho, motion_scale), noise_mixture =
 # (mixture weights, mixture scales) as a (2, C) array, with Student-t noise
 # noise_dof (), its degrees of freedom, and noise_serial (2,), the serial correlation

@@ -23,7 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from .angles import wrap_angle
-from ..config import MotionConfig
+from ..config import MOTION_MODELS, MotionConfig
 
 
 def _noise_cov(G: np.ndarray, variances: np.ndarray) -> np.ndarray:
@@ -173,7 +173,8 @@ def odometry(config: MotionConfig, poses: np.ndarray, increment: np.ndarray, dt:
     return mean, F, Q
 
 
-MODELS = {"bicycle": bicycle, "acfr": acfr, "unicycle": unicycle, "odometry": odometry}
+# The equations of every model of the registry (config.MOTION_INPUTS): the function of its name.
+MODELS = {name: globals()[name] for name in MOTION_MODELS}
 
 
 def calibrated(config: MotionConfig, control: np.ndarray) -> np.ndarray:

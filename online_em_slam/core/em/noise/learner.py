@@ -11,19 +11,9 @@ averaged by stochastic approximation (S <- S + gamma_n (s_t - S),
 gamma_n = n^-alpha) and the M-step below maps the averages to parameter values,
 held between a floor and a ceiling.  The estimator uses them after a warm-up.
 
-Observation statistics, per associated observation p with innovations
-nu_ip = y_p - h(xi_i, thetabar_k) under the posterior particles (weights w_i):
-
-    E_p   = sum_i w_i (sum_c r_ipc / s_c) nu_ip nu_ip^T (n_k - 1) / n_k             (E)
-
-r_ipc the responsibility of mixture component c (scale s_c), n_k the landmark's
-observation count.  The innovation is predictive (thetabar_k has not seen y_p
-yet), so its second moment is R plus the map's uncertainty seen through h,
-about R / (n_k - 1) for an estimate that averages n_k - 1 observations, so
-R (1 + 1 / (n_k - 1)): the factor takes the map's share out, or R would absorb
-the map's uncertainty (:func:`map_share`).
-The pose's uncertainty needs no term: averaging over the posterior particles
-is the E-step's expectation over the pose (mean outer product plus spread).
+The observation statistics (E) and the dof and mixture M-steps are in
+observation.py, the range noise fit in range_fit.py, the serial correlation in
+serial_correlation.py; the learner blends them and runs the M-step.
 
 Motion statistic (M), per scan at t: the pose predicted open loop over the
 last L filter steps from the posterior at t - L, x_pred = xbar_t + C with
@@ -43,293 +33,36 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from functools import cached_property
 
 import numpy as np
-from scipy.optimize import brentq
-from scipy.special import digamma
 
-from ..models.angles import wrap_angle
-from ..config import ObservationNoiseConfig, SensorConfig, SlamConfig
-from .step import FilterStepData
-from ..models.motion import ROTATION_STDS, TRANSLATION_STDS, scaled_noise, step_jitter
-from ..models.observation import (component_precision_weight, information_noise, inv_det_2x2, mahalanobis_2d,
-                                  noise_covariance, noise_loglik, student_t_weight)
-from .averages import StochasticAverage, batch_step_sizes
-from .motion_noise import MotionWindow, absolute_error, prediction_statistic, ratio_error
+from ...config import ObservationNoiseConfig, SlamConfig
+from ...models.angles import wrap_angle
+from ...models.motion import ROTATION_STDS, TRANSLATION_STDS, scaled_noise, step_jitter
+from ...models.observation import information_noise, noise_covariance
+from ..observed_information import motion_residual
+from ..step import FilterStepData
+from ...weighted import weighted_pose_mean
+from .averages import StochasticAverage
 from .motion_gains import MotionGains, gain_statistic, move_towards
-from .observed_information import motion_residual
+from .motion_noise import MotionWindow, absolute_error, prediction_statistic, ratio_error
+from .observation import UsedObservations, mixture_m_step, observation_statistics, student_t_dof
+from .range_fit import RangeBins, range_noise_fit
 from .serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation, whitened
-from ..filter.particles import weighted_pose_mean
 
 MOTION_QUANTITIES = frozenset({"motion_scale", "motion_gains"})
 OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture", "dof", "range_growth",
                                     "serial_correlation"})
-# Range bins of the sigma_r(r) = a + b r fit, over [0, min(max_range, RANGE_BIN_REACH)]
-# (farther observations share the last bin): the bins only weigh, their means are exact.
-RANGE_BINS, RANGE_BIN_REACH = 16, 100.0
 # Largest change of the motion scale in use per filter step, in log: a factor 9 takes 110 steps.
 MAX_SCALE_RATE = 0.02
-# Its bounds on the ratio, by numpy's exp as they always were (math.exp may round differently).
+# Its bounds on the ratio, by numpy's exp (math.exp may round differently).
 _SCALE_RATIO = (float(np.exp(-MAX_SCALE_RATE)), float(np.exp(MAX_SCALE_RATE)))
-
-
-class RangeBins:
-    """Per range bin, the stochastic average of (r, r^2, e_r^2).
-
-    E[e_r^2] = E[(a + b r)^2] = a^2 + 2ab E[r] + b^2 E[r^2] holds exactly in every
-    bin, whatever its width, so the averages do not depend on the values of
-    (a, b) at the time they were taken; the bins only let the fit weigh near and
-    far observations by their own variance.
-    """
-
-    def __init__(self, max_range: float, alpha: float) -> None:
-        self.edges = np.linspace(0.0, min(max_range, RANGE_BIN_REACH), RANGE_BINS + 1)[1:-1]
-        self.counts = np.zeros(RANGE_BINS, dtype=np.int64)          # observations blended in per bin
-        self.values = np.zeros((RANGE_BINS, 3))                     # the averages (rows with count 0: none yet)
-        self.alpha = alpha
-
-    def blend(self, ranges: np.ndarray, squared: np.ndarray) -> None:
-        """One scan's observations: per bin, its mean of (r, r^2, e_r^2) as one batch of
-        :class:`StochasticAverage` (the first batch replaces the empty average)."""
-        index = np.searchsorted(self.edges, ranges)
-        order = np.argsort(index, kind="stable")                    # a bin's observations together, in their order
-        r = ranges[order]
-        bins, sizes, sums = _group_sums(index[order], np.array([r, r * r, squared[order]]))
-        sample = sums / sizes[:, None]                              # np.mean: the sum over the count
-        counts = self.counts[bins]
-        gamma = batch_step_sizes(counts, sizes, self.alpha)
-        old = self.values[bins]
-        self.values[bins] = np.where((counts == 0)[:, None], sample, old + gamma[:, None] * (sample - old))
-        self.counts[bins] = counts + sizes
-
-    def table(self) -> tuple[np.ndarray, np.ndarray]:
-        """(weights n_j^alpha (K,), means (K, 3)) of the bins that have data; n^alpha is
-        the effective sample size of an average with step sizes n^-alpha."""
-        full = self.counts > 0
-        return self.counts[full].astype(float) ** self.alpha, self.values[full]
-
-
-def _group_sums(index: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(groups (K,), sizes (K,), sums (K, Q)) of ``values`` (Q, n, rows contiguous) by the sorted
-    group ``index`` (n,).
-
-    Each sum is np.add.reduce of a contiguous run of a row: numpy's pairwise summation of
-    the group's values in their order, so sum / size is bit for bit np.mean of the group.
-    """
-    starts = [0, *(np.flatnonzero(index[1:] != index[:-1]) + 1).tolist()]
-    ends = starts[1:] + [index.size]
-    sums = np.array([np.add.reduce(values[:, s:e], axis=1) for s, e in zip(starts, ends)])
-    return index[starts], np.subtract(ends, starts), sums
-
-
-def range_noise_fit(counts: np.ndarray, means: np.ndarray, a: float, b: float, free: tuple[bool, bool],
-                    iterations: int = 30) -> tuple[float, float]:
-    """(a, b) of sigma_r(r) = a + b r by weighted least squares of the bins' mean squared
-    range residuals against range (:class:`RangeBins`), ``free`` saying which may move.
-
-    Residuals rho_j = a^2 + 2ab E_j[r] + b^2 E_j[r^2] - E_j[e^2], weights
-    n_j^alpha / v_j^2 (a squared Gaussian residual has variance 2 v^2), damped
-    Gauss-Newton with the weights renewed at every iteration (iteratively
-    reweighted: its fixed point is the maximum-likelihood one).
-    """
-    free = np.array(free, dtype=bool)
-    params = np.array([a, b], dtype=float)
-    if counts.size == 0 or not free.any():
-        return a, b
-    if free[0] and not free[1] and b == 0.0 and a > 0.0 and np.all(np.isfinite(means)):
-        return _constant_range_noise_fit(counts, means[:, 2], a, b, iterations)
-    for _ in range(iterations):
-        weights = counts / np.maximum(_range_variance(means, params), 1e-300) ** 2
-        cost = _range_cost(means, weights, params)
-        step = _gauss_newton_step(means, weights, params, free)
-        if np.all(np.abs(step) <= 1e-9 * np.abs(params) + 1e-15):
-            break                                         # converged (the averages move slowly)
-        for _ in range(10):                               # backtrack: keep the cost decreasing
-            trial = params + step
-            if trial[0] > 0 and trial[1] >= 0 and _range_cost(means, weights, trial) <= cost * (1 + 1e-12):
-                break
-            step = 0.5 * step
-        else:
-            break
-        params = trial
-    return float(params[0]), float(params[1])
-
-
-def _constant_range_noise_fit(counts: np.ndarray, squared: np.ndarray, a: float, b: float,
-                              iterations: int) -> tuple[float, float]:
-    """:func:`range_noise_fit` of a alone with b = 0 (the default: range_growth not learned),
-    in scalars where the general one has arrays, with the same floating-point operations.
-
-    With b = 0 (and finite means) every bin's variance a^2 + 2ab E[r] + b^2 E[r^2] is
-    exactly a^2 and the Jacobian's column 2 (a + b E[r]) exactly 2a; the sums over bins stay
-    the same BLAS dot products, and the 1x1 solve is LAPACK's one division.  (Solving for a
-    in closed form would give the same a up to rounding, not bit for bit.)
-    """
-    for _ in range(iterations):
-        var = a * a
-        floor = max(var, 1e-300)
-        weights = counts / (floor * floor)                  # counts / max(v, 1e-300)^2 (numpy squares by x * x)
-        rho = var - squared
-        cost = float(weights @ rho ** 2)
-        J = np.full(squared.size, 2.0 * a)
-        G = float(J @ (weights * J))
-        G = G + 1e-12 * max(G, 1e-300)                      # the ridge of _gauss_newton_step
-        step = -(float(J @ (weights * rho)) / G) if G != 0.0 else 0.0   # singular: no step, as LinAlgError
-        if abs(step) <= 1e-9 * abs(a) + 1e-15:
-            break                                           # converged (b's step is 0)
-        for _ in range(10):                                 # backtrack: keep the cost decreasing
-            trial = a + step
-            if trial > 0 and float(weights @ (trial * trial - squared) ** 2) <= cost * (1 + 1e-12):
-                break
-            step = 0.5 * step
-        else:
-            break
-        a, b = trial, b + 0.0
-    return float(a), float(b)
-
-
-def _range_variance(means: np.ndarray, params: np.ndarray) -> np.ndarray:
-    """E_j[(a + b r)^2] per bin."""
-    a, b = params
-    return a * a + 2.0 * a * b * means[:, 0] + b * b * means[:, 1]
-
-
-def _range_cost(means: np.ndarray, weights: np.ndarray, params: np.ndarray) -> float:
-    return float(weights @ (_range_variance(means, params) - means[:, 2]) ** 2)
-
-
-def _gauss_newton_step(means: np.ndarray, weights: np.ndarray, params: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """-(J^T W J)^-1 J^T W rho on the free parameters; J_j = 2 (a + b E[r], a E[r] + b E[r^2])."""
-    a, b = params
-    J = 2.0 * np.stack([a + b * means[:, 0], a * means[:, 0] + b * means[:, 1]], axis=1)[:, free]
-    rho = _range_variance(means, params) - means[:, 2]
-    G = J.T @ (weights[:, None] * J)
-    step = np.zeros(2)
-    ridge = 1e-12 * max(np.trace(G), 1e-300)       # all observations in one bin: b is not identified
-    try:
-        step[free] = -np.linalg.solve(G + ridge * np.eye(G.shape[0]), J.T @ (weights * rho))
-    except np.linalg.LinAlgError:
-        pass
-    return step
-
-
-def student_t_dof(statistic: float, low: float, high: float) -> float:
-    """The dof maximising the expected complete-data log-likelihood of the Gamma(dof/2, dof/2)
-    precision scales, given statistic = E[log tau - tau] (<= -1): the root of
-    1 + log(dof/2) - psi(dof/2) + statistic = 0, within [low, high].
-
-    log(v/2) - psi(v/2) falls from +inf to 0 as v grows, so the root is unique.
-    """
-    def score(log_dof: float) -> float:
-        half = 0.5 * math.exp(log_dof)
-        return 1.0 + math.log(half) - float(digamma(half)) + statistic
-
-    lo, hi = math.log(low), math.log(high)
-    if score(lo) <= 0.0:
-        return low
-    if score(hi) >= 0.0:
-        return high                                  # the tails are no heavier than a Gaussian's
-    return float(math.exp(brentq(score, lo, hi, xtol=1e-10)))
-
-
-def map_share(n_obs: np.ndarray) -> np.ndarray:
-    """(n_k - 1) / n_k (P,): the part of the innovation's second moment R (1 + 1/(n_k - 1)) that is R.
-
-    A factor rather than subtracting R / (n_k - 1) with the current estimate of R: while
-    that is still a wrong start (9x in variance, say) the difference can go negative
-    for landmarks seen a few times, and the first, heavily weighted statistics would
-    pin R to its floor.
-    """
-    m = np.maximum(np.asarray(n_obs, dtype=float) - 1.0, 1.0)
-    return m / (m + 1.0)
-
-
-def map_uncertainty(R: np.ndarray, n_obs: np.ndarray) -> np.ndarray:
-    """H Sigma_k H^T ~ R / (n_k - 1) (P, 2, 2): the landmark's estimate averages its earlier
-    observations, seen through h.
-
-    Taken from the learned R rather than from the M-step's Sigma_k, which is
-    built with the R in use: while that is still the wrong starting value
-    (10 times too large, say), its map term would swamp the residuals.
-    """
-    return R / np.maximum(np.asarray(n_obs, dtype=float) - 1.0, 1.0)[:, None, None]
-
-
-def pose_jacobian_from(H: np.ndarray, pose: np.ndarray, sensor: SensorConfig) -> np.ndarray:
-    """dh/dX (P, 2, 3) from dh/dtheta (P, 2, 2) at base pose ``pose`` (observation.pose_jacobian
-    without the landmarks): dh/dp = -dh/dtheta, the sensor lever arm, -1 on the bearing's yaw."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    lever = np.array([-s * sensor.offset_x - c * sensor.offset_y, c * sensor.offset_x - s * sensor.offset_y])
-    J = np.empty(H.shape[:-1] + (3,))
-    J[..., :2] = -H
-    J[..., 2] = -(H @ lever)
-    J[..., 1, 2] -= 1.0
-    return J
-
-
-def _latent(noise: ObservationNoiseConfig, nu: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-    """noise_loglik's latent variable (..., P, C) without its log-likelihood (the statistics do not
-    use it), and the Student-t's d2 = nu^T S^-1 nu (..., P) for its tail statistic (else None).
-
-    ``S`` (P, 2, 2) broadcasts against ``nu`` (..., P, 2): the Student-t's d2 then takes one
-    inverse per observation, not one per particle (elementwise the same numbers); the other
-    models get S at nu's shape, as noise_loglik always had it.
-    """
-    if noise.model == "student_t":
-        d2, _ = mahalanobis_2d(nu, S)
-        return student_t_weight(d2, noise.dof)[..., None], d2
-    return noise_loglik(noise, nu, np.broadcast_to(S, nu.shape + (2,)))[1], None
 
 
 def _clip(x: float, low: float, high: float) -> float:
     """float(np.clip(x, low, high)) of one number without a ufunc call: numpy's order and ties
     (max with low, then min with high; on a tie x stays, NaN stays), which max/min keep."""
     return float(min(max(x, low), high))
-
-
-class _UsedObservations:
-    """The step's observations that inform the noise (``use``) and what the statistics take
-    of them, computed once: ranges (P,), counts n_k (P,), innovations nu (N, P, 2), Jacobians
-    H (N, P, 2, 2), their R (P, 2, 2) under the current estimate ``noise`` and the map term
-    R / (n_k - 1) (P, 2, 2); ``scan`` their posterior means at the mean ``pose``."""
-
-    def __init__(self, data: FilterStepData, n_obs: np.ndarray, use: np.ndarray, R: np.ndarray,
-                 pose: np.ndarray, sensor: SensorConfig, noise: ObservationNoiseConfig) -> None:
-        self.ranges, self.n_obs = data.y[use, 0], n_obs[use]
-        self.nu, self.H = data.nu[:, use], data.H[:, use]
-        self.R = R
-        self.map_term = map_uncertainty(R, self.n_obs)
-        self._mean_of = (data.weights, pose, sensor, noise)
-
-    @cached_property
-    def scan(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(posterior-mean innovations nubar (P, 2), pose Jacobians H_x (P, 2, 3) at the mean pose,
-        the noise model's precision factors at nubar (P,)): shared by the motion and serial statistics."""
-        w, pose, sensor, noise = self._mean_of
-        nu, latent = self._mean_latent
-        H = np.einsum("n,npij->pij", w, self.H)
-        return nu, pose_jacobian_from(H, pose, sensor), component_precision_weight(noise, latent)
-
-    @cached_property
-    def _mean_latent(self) -> tuple[np.ndarray, np.ndarray]:
-        """(posterior-mean innovations nubar (P, 2), the noise model's latent variables at them (P, C))."""
-        w, _, _, noise = self._mean_of
-        nu = np.einsum("n,npi->pi", w, self.nu)
-        return nu, _latent(noise, nu, self.R + self.map_term)[0]
-
-    @cached_property
-    def variance_factor(self) -> np.ndarray:
-        """The factor on R of each observation's noise variance (P,), for the motion statistic's
-        K: under the mixture the scale of the likelier component (exactly 1 for an inlier),
-        otherwise 1 / the precision factor.  Not the precision factor's inverse under the
-        mixture: an inlier with some responsibility for the outlier component would count
-        more variance than it has, and the statistic, which subtracts K, would learn a
-        motion scale 5 % low (docs/RESULTS.md)."""
-        noise = self._mean_of[3]
-        if noise.model != "mixture":
-            return 1.0 / self.scan[2]
-        return np.asarray(noise.mixture_scales, dtype=float)[np.argmax(self._mean_latent[1], axis=-1)]
 
 
 class NoiseLearner:
@@ -481,57 +214,21 @@ class NoiseLearner:
         if use.any():
             made = self.estimate is self._in_use and weighed is self._in_use
             R = R_filter[use] if made else noise_covariance(self.estimate, data.y[use, 0])
-            used = _UsedObservations(data, n_obs, use, R, pose, self.config.sensor, self.estimate)
+            used = UsedObservations(data, n_obs, use, R, pose, self.config.sensor, self.estimate)
         if self.learn & MOTION_QUANTITIES:
             self._update_motion(data, used, pose)        # every step: silence is part of the motion
         if "serial_correlation" in self.learn and used is not None:
             self._update_serial(data.step, used, (data.rows if ids is None else np.asarray(ids))[use])
         if self.learn & OBSERVATION_QUANTITIES and data.rows.size:
-            statistics = self._observation_statistics(data, used)
+            # Latent variables under the latest estimate (the E-step of online EM runs at the
+            # current parameter, also while the filter still warms up).
+            statistics = observation_statistics(self.estimate, data.weights, used)
             if statistics is not None:
                 sample, ranges, squared = statistics
                 self.observations.blend(sample, ranges.size)
                 self.range_bins.blend(ranges, squared)
                 self.estimate = self._observation_m_step(self.observations.value)
                 self._in_use = self.estimate if self.observation_noise_warm else self._start
-
-    def _observation_statistics(self, data: FilterStepData, used: _UsedObservations | None):
-        """(the step's mean of [E_bb, rho term, tail statistics], ranges, E_rr), from (E), over the
-        ``used`` observations (landmarks seen often enough, the configured R)."""
-        if used is None:
-            return None
-        # Latent variables under the latest estimate (the E-step of online EM runs at the
-        # current parameter, also while the filter still warms up).
-        noise = self.estimate
-        ranges, nu, R, map_term, w = used.ranges, used.nu, used.R, used.map_term, data.weights
-        latent, d2 = _latent(noise, nu, R + map_term)                                 # (N, P, C)
-        outer = nu[..., :, None] * nu[..., None, :] * map_share(used.n_obs)[:, None, None]
-        E = np.einsum("n,np,npij->pij", w, component_precision_weight(noise, latent), outer)  # (E), (P, 2, 2)
-        a, b = noise.sigma_range, noise.range_growth
-        sample = np.concatenate([
-            [E[:, 1, 1].mean(), (a * E[:, 0, 1] / (a + b * ranges)).mean()],     # rho scales with sigma_r(r)
-            self._tail_statistics(noise, w, latent, outer, R, d2)])
-        if not (np.all(np.isfinite(sample)) and np.all(np.isfinite(E[:, 0, 0]))):
-            return None
-        return sample, ranges, E[:, 0, 0]
-
-    @staticmethod
-    def _tail_statistics(noise, w: np.ndarray, latent: np.ndarray, outer: np.ndarray, R: np.ndarray,
-                         d2: np.ndarray | None) -> np.ndarray:
-        """The statistics of the tails' parameters, averaged over the scan's observations.
-
-        Mixture: mean responsibilities r_c and r_c q, q = tr(R^-1 outer) / 2 (weights and
-        outlier scales).  Student-t: E[log tau - tau | nu] with tau | nu ~ Gamma((dof + 2)/2,
-        (dof + d2)/2), so E[log tau] = psi((dof + 2)/2) - log((dof + d2)/2) (the dof), d2 (N, P)
-        the innovations' nu^T S^-1 nu.
-        """
-        if noise.model == "student_t":
-            log_tau = digamma(0.5 * noise.dof + 1.0) - np.log(0.5 * (noise.dof + d2))
-            return np.array([np.einsum("n,np->p", w, log_tau - latent[..., 0]).mean()])
-        R_inv, _ = inv_det_2x2(R)
-        q = 0.5 * np.einsum("pij,npji->np", R_inv, outer)                             # tr(R^-1 outer) / 2
-        return np.concatenate([np.einsum("n,npc->pc", w, latent).mean(axis=0),
-                               np.einsum("n,npc,np->pc", w, latent, q).mean(axis=0)])
 
     def _configured_R(self, data: FilterStepData, weighed: ObservationNoiseConfig) -> tuple[np.ndarray, np.ndarray]:
         """(observations whose R is the filter's, from ``weighed``, the noise in use as the filter
@@ -542,7 +239,7 @@ class NoiseLearner:
             return np.ones(expected.shape[:-2], dtype=bool), expected
         return np.all(np.isclose(data.R, expected, rtol=1e-9, atol=1e-15), axis=(-1, -2)), expected
 
-    def _update_serial(self, step: int, used: _UsedObservations, ids: np.ndarray) -> None:
+    def _update_serial(self, step: int, used: UsedObservations, ids: np.ndarray) -> None:
         """Pair the scan's whitened pose-free innovations with the same landmarks' in the scan
         before and blend their moments (serial_correlation.py)."""
         if ids.size < 2:
@@ -563,7 +260,7 @@ class NoiseLearner:
             self._jitter_key, self._jitter = key, step_jitter(motion)
         return self._jitter
 
-    def _update_motion(self, data: FilterStepData, used: _UsedObservations | None, pose: np.ndarray) -> None:
+    def _update_motion(self, data: FilterStepData, used: UsedObservations | None, pose: np.ndarray) -> None:
         """Push the step into the window; at a scan of known landmarks, blend (M) of the window."""
         scale = self.motion_scale()
         jitter = self._step_jitter()
@@ -608,7 +305,7 @@ class NoiseLearner:
                                                                         limit)
         return bool(abs(raw - limit) > 2.0 * error)
 
-    def _update_gains(self, used: _UsedObservations) -> None:
+    def _update_gains(self, used: UsedObservations) -> None:
         """Blend (G) of the window (motion_gains.py); move the gains in use once they are known."""
         z = gain_statistic(self.window.steps, self.sensitivities, *self._scan_terms(used), self.scale_in_use,
                            self.gains_in_use)
@@ -626,7 +323,7 @@ class NoiseLearner:
         self.gains_in_use = move_towards(self.gains_in_use, target, _SCALE_RATIO)
 
     @staticmethod
-    def _scan_terms(used: _UsedObservations):
+    def _scan_terms(used: UsedObservations):
         """(H_x (P, 2, 3), posterior mean innovation (P, 2), noise covariance (P, 2, 2)) of the scan.
 
         The noise is the learned R times each observation's variance factor (an outlier's
@@ -655,26 +352,12 @@ class NoiseLearner:
             rho = _clip(rho, -0.999 * a * sb, 0.999 * a * sb)            # stays valid as a, sb move
         values = dict(sigma_range=a, range_growth=b, sigma_bearing=sb, rho=rho)
         if "mixture" in self.learn:
-            values.update(self._mixture_m_step(stats[2:]))
+            values.update(mixture_m_step(stats[2:], self.estimate.mixture_scales, s))
         if "dof" in self.learn:
             values["dof"] = student_t_dof(float(stats[2]), *s.dof_limits)
         if "serial_correlation" in self.learn and self.serial.value is not None:
             values["serial_correlation"] = serial_correlation(self.serial.value, s.serial_correlation_limit)
         return replace(noise, **values)
-
-    def _mixture_m_step(self, stats: np.ndarray) -> dict:
-        """Weights = mean responsibilities; outlier scales = E[r_c q] / E[r_c] (component 0 keeps scale 1)."""
-        s = self.settings
-        c = stats.size // 2
-        resp, q = stats[:c], stats[c:]
-        outlier_w = np.clip(resp[1:], *s.mixture_weight_limits)
-        outlier_w *= min(1.0, 0.5 / max(outlier_w.sum(), 1e-300))      # the inlier keeps at least half
-        scales = np.asarray(self.estimate.mixture_scales, dtype=float).copy()
-        seen = resp[1:] > 1e-9
-        scales[1:][seen] = np.clip(q[1:][seen] / resp[1:][seen], *s.mixture_scale_limits)
-        weights = np.concatenate([[1.0 - outlier_w.sum()], outlier_w])
-        return {"mixture_weights": tuple(float(v) for v in weights / math.fsum(weights)),
-                "mixture_scales": (1.0,) + tuple(float(v) for v in scales[1:])}
 
     # ------------------------------------------------------------ reporting
     def learned(self) -> dict:

@@ -5,7 +5,7 @@ at t - L gives the scan's prediction error nu = nubar_t - H_x C, whose
 covariance is K + s G (G = H_x Q_L H_x^T the window's motion noise at scale 1,
 K the rest), so s = sum_t (nu^T W nu - tr(W K)) / sum_t tr(W G).  The window
 of filter steps, its compounding and the statistic live here; the learner
-(noise_learning.py) averages it; motion_gains.py uses the same window for the
+(learner.py) averages it; motion_gains.py uses the same window for the
 calibration of the motion input.
 """
 from __future__ import annotations

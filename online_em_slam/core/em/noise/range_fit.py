@@ -1,0 +1,120 @@
+"""The range noise sigma_r(r) = a + b r learned from binned squared range residuals
+(docs/METHOD.md, "Noise learned online").
+
+:class:`RangeBins` keeps, per range bin, the stochastic averages of (r, r^2, e_r^2);
+:func:`range_noise_fit` fits (a, b) to them by iteratively reweighted least squares.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .averages import batch_step_sizes
+
+# Range bins of the sigma_r(r) = a + b r fit, over [0, min(max_range, RANGE_BIN_REACH)]
+# (farther observations share the last bin): the bins only weigh, their means are exact.
+RANGE_BINS, RANGE_BIN_REACH = 16, 100.0
+
+
+class RangeBins:
+    """Per range bin, the stochastic average of (r, r^2, e_r^2).
+
+    E[e_r^2] = E[(a + b r)^2] = a^2 + 2ab E[r] + b^2 E[r^2] holds exactly in every
+    bin, whatever its width, so the averages do not depend on the values of
+    (a, b) at the time they were taken; the bins only let the fit weigh near and
+    far observations by their own variance.
+    """
+
+    def __init__(self, max_range: float, alpha: float) -> None:
+        self.edges = np.linspace(0.0, min(max_range, RANGE_BIN_REACH), RANGE_BINS + 1)[1:-1]
+        self.counts = np.zeros(RANGE_BINS, dtype=np.int64)          # observations blended in per bin
+        self.values = np.zeros((RANGE_BINS, 3))                     # the averages (rows with count 0: none yet)
+        self.alpha = alpha
+
+    def blend(self, ranges: np.ndarray, squared: np.ndarray) -> None:
+        """One scan's observations: per bin, its mean of (r, r^2, e_r^2) as one batch of
+        :class:`StochasticAverage` (the first batch replaces the empty average)."""
+        index = np.searchsorted(self.edges, ranges)
+        order = np.argsort(index, kind="stable")                    # a bin's observations together, in their order
+        r = ranges[order]
+        bins, sizes, sums = _group_sums(index[order], np.array([r, r * r, squared[order]]))
+        sample = sums / sizes[:, None]                              # np.mean: the sum over the count
+        counts = self.counts[bins]
+        gamma = batch_step_sizes(counts, sizes, self.alpha)
+        old = self.values[bins]
+        self.values[bins] = np.where((counts == 0)[:, None], sample, old + gamma[:, None] * (sample - old))
+        self.counts[bins] = counts + sizes
+
+    def table(self) -> tuple[np.ndarray, np.ndarray]:
+        """(weights n_j^alpha (K,), means (K, 3)) of the bins that have data; n^alpha is
+        the effective sample size of an average with step sizes n^-alpha."""
+        full = self.counts > 0
+        return self.counts[full].astype(float) ** self.alpha, self.values[full]
+
+
+def _group_sums(index: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(groups (K,), sizes (K,), sums (K, Q)) of ``values`` (Q, n, rows contiguous) by the sorted
+    group ``index`` (n,).
+
+    Each sum is np.add.reduce of a contiguous run of a row: numpy's pairwise summation of
+    the group's values in their order, so sum / size is bit for bit np.mean of the group.
+    """
+    starts = [0, *(np.flatnonzero(index[1:] != index[:-1]) + 1).tolist()]
+    ends = starts[1:] + [index.size]
+    sums = np.array([np.add.reduce(values[:, s:e], axis=1) for s, e in zip(starts, ends)])
+    return index[starts], np.subtract(ends, starts), sums
+
+
+def range_noise_fit(counts: np.ndarray, means: np.ndarray, a: float, b: float, free: tuple[bool, bool],
+                    iterations: int = 30) -> tuple[float, float]:
+    """(a, b) of sigma_r(r) = a + b r by weighted least squares of the bins' mean squared
+    range residuals against range (:class:`RangeBins`), ``free`` saying which may move.
+
+    Residuals rho_j = a^2 + 2ab E_j[r] + b^2 E_j[r^2] - E_j[e^2], weights
+    n_j^alpha / v_j^2 (a squared Gaussian residual has variance 2 v^2), damped
+    Gauss-Newton with the weights renewed at every iteration (iteratively
+    reweighted: its fixed point is the maximum-likelihood one).
+    """
+    free = np.array(free, dtype=bool)
+    params = np.array([a, b], dtype=float)
+    if counts.size == 0 or not free.any():
+        return a, b
+    for _ in range(iterations):
+        weights = counts / np.maximum(_range_variance(means, params), 1e-300) ** 2
+        cost = _range_cost(means, weights, params)
+        step = _gauss_newton_step(means, weights, params, free)
+        if np.all(np.abs(step) <= 1e-9 * np.abs(params) + 1e-15):
+            break                                         # converged (the averages move slowly)
+        for _ in range(10):                               # backtrack: keep the cost decreasing
+            trial = params + step
+            if trial[0] > 0 and trial[1] >= 0 and _range_cost(means, weights, trial) <= cost * (1 + 1e-12):
+                break
+            step = 0.5 * step
+        else:
+            break
+        params = trial
+    return float(params[0]), float(params[1])
+
+
+def _range_variance(means: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """E_j[(a + b r)^2] per bin."""
+    a, b = params
+    return a * a + 2.0 * a * b * means[:, 0] + b * b * means[:, 1]
+
+
+def _range_cost(means: np.ndarray, weights: np.ndarray, params: np.ndarray) -> float:
+    return float(weights @ (_range_variance(means, params) - means[:, 2]) ** 2)
+
+
+def _gauss_newton_step(means: np.ndarray, weights: np.ndarray, params: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """-(J^T W J)^-1 J^T W rho on the free parameters; J_j = 2 (a + b E[r], a E[r] + b E[r^2])."""
+    a, b = params
+    J = 2.0 * np.stack([a + b * means[:, 0], a * means[:, 0] + b * means[:, 1]], axis=1)[:, free]
+    rho = _range_variance(means, params) - means[:, 2]
+    G = J.T @ (weights[:, None] * J)
+    step = np.zeros(2)
+    ridge = 1e-12 * max(np.trace(G), 1e-300)       # all observations in one bin: b is not identified
+    try:
+        step[free] = -np.linalg.solve(G + ridge * np.eye(G.shape[0]), J.T @ (weights * rho))
+    except np.linalg.LinAlgError:
+        pass
+    return step

@@ -1,0 +1,77 @@
+"""The motion between filter steps: control segments queued until a scan or a pose query
+needs them, then compounded into the Gaussian transition (T) in one vectorised call
+(models/motion.py ``integrate_segments``; control messages, 40 Hz on the KTH ute,
+outnumber scans).  The weighted mean pose's own transition since the last filter step
+(f, F, Q: the observed M-step's linearisation track) rides along as one more row.
+"""
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import replace
+
+import numpy as np
+
+from ..config import MotionConfig
+from ..models import motion as motion_models
+from ..models.angles import wrap_angle
+
+
+class PendingMotion:
+    """Queued segments (``controls``, ``dts``) and the track since the last filter step:
+    ``pose`` (3,), ``cov`` (3, 3), ``jacobian`` (3, 3) and ``sensitivity`` (3, 2), d pose / d
+    (translation_gain, rotation_gain)."""
+
+    def __init__(self, pose: np.ndarray) -> None:
+        self.controls: list[np.ndarray] = []
+        self.dts: list[float] = []
+        self.reset_track(pose)
+
+    def reset_track(self, pose: np.ndarray) -> None:
+        """The track restarts at ``pose`` (a filter step, a new pose)."""
+        self.pose = pose.copy()
+        self.jacobian = np.eye(3)
+        self.cov = np.zeros((3, 3))
+        self.sensitivity = np.zeros((3, 2))
+
+    def queue(self, control: np.ndarray, dt: float) -> None:
+        self.controls.append(control)
+        self.dts.append(dt)
+
+    def flush(self, config: MotionConfig, learns_gains: bool, means: np.ndarray, covs: np.ndarray,
+              drops: Counter) -> tuple[np.ndarray, np.ndarray] | None:
+        """The particles' transitions (``means`` (N, 3), ``covs`` (N, 3, 3)) moved by the queued
+        segments under ``config``, and the track with them; None when nothing is queued, or
+        when the result is not finite (counted in ``drops``: the last finite state stays)."""
+        if not self.dts:
+            return None
+        controls, dts = np.array(self.controls), np.array(self.dts)
+        poses = np.vstack([means, self.pose])
+        covs = np.concatenate([covs, self.cov[None]])
+        mean, cov, F = motion_models.integrate_segments(config, poses, covs, controls, dts, with_jacobian=True)
+        sensitivity = (self._gain_sensitivity(config, controls, dts, mean[-1], F[-1]) if learns_gains
+                       else self.sensitivity)
+        self.controls.clear()
+        self.dts.clear()
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov)) and np.all(np.isfinite(sensitivity))):
+            # Never let one step poison the estimate: keep the last finite state.
+            drops["non_finite_prediction"] += 1
+            return None
+        mean[:, 2] = wrap_angle(mean[:, 2])
+        self.pose, self.cov = mean[-1], cov[-1]
+        self.jacobian = F[-1] @ self.jacobian
+        self.sensitivity = sensitivity
+        return mean[:-1], cov[:-1]
+
+    def _gain_sensitivity(self, config: MotionConfig, controls: np.ndarray, dts: np.ndarray, moved: np.ndarray,
+                          jacobian: np.ndarray) -> np.ndarray:
+        """d track mean / d (translation_gain, rotation_gain) since the last filter step (3, 2):
+        the earlier segments' carried by this flush's Jacobian, plus this flush's, by a forward
+        difference of the motion integration (``moved``: the track's mean after it)."""
+        pose = self.pose[None]
+        D = np.empty((3, 2))
+        for j, name in enumerate(("translation_gain", "rotation_gain")):
+            step = 1e-6 * getattr(config, name)
+            nudged = replace(config, **{name: getattr(config, name) + step})
+            D[:, j] = (motion_models.integrate_segments(nudged, pose, np.zeros((1, 3, 3)), controls, dts)[0][0]
+                       - moved) / step
+        return jacobian @ self.sensitivity + D
