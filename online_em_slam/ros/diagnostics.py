@@ -83,7 +83,7 @@ class Diagnostics:
                 "last_stamp": slam.last_stamp if slam.last_stamp is not None else -1.0,
                 "dropped_total": total,
             }
-            learned = slam.learned_noise()              # noise learned online (noise_learning.py)
+            learned = slam.learned_noise()              # noise learned online (core/em/noise/)
             if learned["enabled"]:
                 values.update({f"noise_learned.{k}": v for k, v in learned.items() if k not in ("enabled", "learning")})
             values.update({f"dropped.{reason}": count for reason, count in sorted(drops.items())})
