@@ -19,7 +19,7 @@ $(STAMP): requirements.txt requirements-tf2.txt setup.py
 install: $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m online_em_slam.demo
+	$(PY) -m online_em_slam.experiments.demo
 
 # The numerical tests on two workers (a file's tests stay together: they share fixtures),
 # then the live-node tests alone, so their wall-clock tolerances see an unloaded machine.
@@ -28,7 +28,7 @@ test: $(STAMP)
 	$(PY) -m pytest -q -m live test
 
 benchmark: $(STAMP)
-	$(PY) -m online_em_slam.benchmark --runs 20 --particles 100 --output results/benchmark
+	$(PY) -m online_em_slam.experiments.benchmark --runs 20 --particles 100 --output results/benchmark
 
 clean:
 	rm -rf $(VENV) out results build *.egg-info

@@ -18,8 +18,8 @@ from online_em_slam.baselines.ekf_slam import EkfSlam
 from online_em_slam.baselines.fastslam2 import FastSlam2
 from online_em_slam.baselines.gtsam_batch import dead_reckoning
 from online_em_slam.core.config import MotionConfig, replace_section
-from online_em_slam.simulation import (ScenarioConfig, feed, landmark_rmse, simulate,
-                                           slam_config_for)
+from online_em_slam.experiments.simulation import (ScenarioConfig, feed, landmark_rmse, simulate,
+                                                   slam_config_for)
 from online_em_slam.core.types import Observations
 
 SEEDS = (0, 1, 2)
@@ -160,7 +160,7 @@ def test_gtsam_batch_is_the_ml_reference(runs):
     rmse = []
     for seed in SEEDS:
         s = _scenario(seed)
-        result = batch_estimate(s)
+        result = batch_estimate(s, slam_config_for(s))
         assert np.all(np.isfinite(result.poses))
         seen = np.isfinite(result.landmarks[:, 0])
         rmse.append(np.sqrt(np.mean(np.sum((result.landmarks[seen] - s.landmarks[seen]) ** 2, axis=1))))

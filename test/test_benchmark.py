@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from online_em_slam import benchmark
-from online_em_slam.simulation import ScenarioConfig, simulate, slam_config_for
+from online_em_slam.experiments import benchmark, benchmark_tables
+from online_em_slam.experiments.simulation import ScenarioConfig, simulate, slam_config_for
 
 
 def test_overrides_are_typed_validated_and_reach_the_online_em_config():
@@ -46,19 +46,19 @@ def _row(method, seed, laps, rmse, shape=0.1, frame=0.2):
 def test_summary_and_paired_differences_by_method_laps_and_seed():
     a = [_row("ekf_slam", s, 1, 2.0 + s) for s in range(4)] + [_row("online_em", 0, 1, 5.0)]
     b = [_row("ekf_slam", s, 1, 1.5 + s + 0.1 * (s % 2)) for s in range(5)]       # seed 4 has no pair
-    table = benchmark.summarize(a)
+    table = benchmark_tables.summarize(a)
     ekf = next(r for r in table if r["method"] == "ekf_slam")
     assert ekf["runs"] == 4 and ekf["landmark_rmse_mean"] == pytest.approx(3.5)
     assert ekf["landmark_rmse_se"] == pytest.approx(np.std([2, 3, 4, 5], ddof=1) / 2)
-    [paired] = benchmark.paired_differences(a, b)
+    [paired] = benchmark_tables.paired_differences(a, b)
     assert (paired["method"], paired["laps"], paired["runs"]) == ("ekf_slam", 1, 4)
     diffs = np.array([-0.5, -0.4, -0.5, -0.4])
     assert paired["landmark_rmse_mean"] == pytest.approx(diffs.mean())
     assert paired["landmark_rmse_se"] == pytest.approx(diffs.std(ddof=1) / 2)
     assert paired["shape_error_mean"] == 0.0
-    text = benchmark.format_paired([paired], "a", "b")
+    text = benchmark_tables.format_paired([paired], "a", "b")
     assert "| ekf_slam | 1 | 4 | 3.500 -> 3.050 | -0.450 ± 0.029 |" in text
-    assert "| ekf_slam | 1 | 4 | 510 | 3.500 ± 0.645 |" in benchmark.format_laps_table(table, [1])
+    assert "| ekf_slam | 1 | 4 | 510 | 3.500 ± 0.645 |" in benchmark_tables.format_laps_table(table, [1])
 
 
 def test_laps_command_writes_table_json_and_plot_and_compares_variants(tmp_path, capsys):

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from online_em_slam import cli
-from online_em_slam.paramfile import ParamFileError, config_from_params, load_params
+from online_em_slam.offline import cli
+from online_em_slam.parameters.yaml_file import ParamFileError, config_from_params, load_params
 
 ROOT = Path(__file__).resolve().parent.parent
 CAR_PARK_PARAMS = ROOT / "config" / "car_park.yaml"
@@ -18,7 +18,7 @@ CAR_PARK_PARAMS = ROOT / "config" / "car_park.yaml"
 
 @pytest.fixture(scope="module")
 def car_park_bag(tmp_path_factory):
-    from online_em_slam.kth.convert import convert
+    from online_em_slam.datasets.kth.convert import convert
     bag = tmp_path_factory.mktemp("bags") / "car_park"
     convert("car_park", bag, progress=False)
     return bag
@@ -130,7 +130,7 @@ def test_params_build_importable_without_ros():
             "        if name.split('.')[0] in ('rclpy', 'rcl_interfaces'):\n"
             "            raise ImportError('blocked ' + name)\n"
             "sys.meta_path.insert(0, Block())\n"
-            "from online_em_slam.paramfile import config_from_params\n"
+            "from online_em_slam.parameters.yaml_file import config_from_params\n"
             f"print(config_from_params({str(CAR_PARK_PARAMS)!r})[0].motion.model)\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert done.returncode == 0, done.stderr
@@ -142,8 +142,8 @@ def test_bad_files_give_one_line_naming_the_file_and_exit_1(tmp_path, capsys, ma
     """Reliability, second round, item 6: no traceback, exit status 1, the file named."""
     import shutil
 
-    from online_em_slam.cli import main
-    from online_em_slam.kth.convert import convert
+    from online_em_slam.offline.cli import main
+    from online_em_slam.datasets.kth.convert import convert
 
     good = tmp_path / "good"
     convert("car_park", good, progress=False)

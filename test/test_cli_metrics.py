@@ -1,5 +1,5 @@
 """Shape and frame error in the offline runner's printed summary and comparison table."""
-from online_em_slam import report
+from online_em_slam.offline import report
 
 
 def _metrics(method: str) -> dict:

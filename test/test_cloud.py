@@ -6,8 +6,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from online_em_slam.cloud import OBSERVATION_FIELDS, build_message, decode_message, observations_from_message
-from online_em_slam.quaternion import odometry_yaw, quaternion_to_yaw, yaw_to_xyzw
+from online_em_slam.messages.cloud import OBSERVATION_FIELDS, build_message, decode_message, observations_from_message
+from online_em_slam.messages.quaternion import odometry_yaw, quaternion_to_yaw, yaw_to_xyzw
 
 
 def _rosbags_types():
@@ -73,7 +73,7 @@ def test_runner_reads_observations_with_the_node_checks():
     """The offline runner counts refused observations (runner_skipped) as the node counts them."""
     from std_msgs.msg import Header
 
-    from online_em_slam.runner import BagReader
+    from online_em_slam.offline.runner import BagReader
     settings = SimpleNamespace(motion_source="control", observations_topic="obs", odom_topic="odom",
                                control_topic="control")
     reader = BagReader(settings)

@@ -77,7 +77,7 @@ def test_merging_of_new_landmarks_keeps_the_first_of_close_pairs():
 
 
 def _run_with_reset(m_step, reset):
-    from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for
+    from online_em_slam.experiments.simulation import ScenarioConfig, feed, simulate, slam_config_for
     scenario = simulate(ScenarioConfig(seed=0, n_steps=300))
     config = slam_config_for(scenario)
     config.em.m_step = m_step

@@ -4,8 +4,8 @@ import pytest
 from scipy.optimize import linear_sum_assignment
 
 from online_em_slam.core import Observations, OnlineEMSlam, SlamConfig
-from online_em_slam.evaluation import map_error_split
-from online_em_slam.simulation import ScenarioConfig, feed, landmark_rmse, simulate, slam_config_for
+from online_em_slam.offline.evaluation import map_error_split
+from online_em_slam.experiments.simulation import ScenarioConfig, feed, landmark_rmse, simulate, slam_config_for
 
 
 def dead_reckoning_map_rmse(scenario):

@@ -1,4 +1,4 @@
-"""Metrics of online_em_slam.evaluation on hand-made cases."""
+"""Metrics of online_em_slam.offline.evaluation on hand-made cases."""
 from __future__ import annotations
 
 import math
@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from online_em_slam.evaluation import (initial_pose_from_gps, interpolate_poses, interpolate_positions,
-                                       landmark_metrics, landmark_pairs_by_id, map_error, map_error_split,
-                                       rigid_alignment, rigid_fit_2d, sensor_points, timing_metrics,
-                                       trajectory_metrics)
+from online_em_slam.offline.evaluation import (initial_pose_from_gps, interpolate_poses, interpolate_positions,
+                                               landmark_metrics, landmark_pairs_by_id, map_error, map_error_split,
+                                               rigid_alignment, rigid_fit_2d, sensor_points, timing_metrics,
+                                               trajectory_metrics)
 
 TRUTH = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0]])
 

@@ -20,7 +20,7 @@ from geometry_msgs.msg import Quaternion, TwistStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
 
-from online_em_slam.cloud import decode_message  # noqa: E402
+from online_em_slam.messages.cloud import decode_message  # noqa: E402
 from online_em_slam.ros import conversions as conv  # noqa: E402
 from test_node import T0, finite_pose, landmark_table  # noqa: E402
 from test_reliability import make_cloud  # noqa: E402

@@ -14,17 +14,18 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from online_em_slam.baselines.gtsam_inputs import collect_problem, lever_arm_measurement
+from online_em_slam.offline.batch import collect_problem, lever_arm_measurement
 from online_em_slam.core import OnlineEMSlam
 from online_em_slam.core.config import MotionConfig, SlamConfig
 from online_em_slam.core.models.motion import integrate_segments, odometry_increment, step_jitter
 from online_em_slam.core.models.observation import pose_jacobian, predict_observation, sensor_poses
 from online_em_slam.core.types import Observations
 from online_em_slam.pipeline.inputs import CONTROL, OBSERVATIONS, ODOMETRY
-from online_em_slam.simulation import ScenarioConfig, bicycle_step, simulate, slam_config_for
+from online_em_slam.experiments.simulation import ScenarioConfig, bicycle_step, simulate, slam_config_for
 
 gtsam = pytest.importorskip("gtsam")
-from online_em_slam.baselines.gtsam_batch import batch_estimate, batch_from_inputs  # noqa: E402
+from online_em_slam.baselines.gtsam_batch import batch_estimate  # noqa: E402
+from online_em_slam.offline.batch import batch_from_inputs  # noqa: E402
 
 
 def _rotation(phi: float) -> np.ndarray:

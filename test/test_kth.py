@@ -7,11 +7,11 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from online_em_slam.cloud import OBSERVATION_FIELDS, decode_message
-from online_em_slam.kth import datasets
-from online_em_slam.kth.beacons import extract_beacons, observation_columns
-from online_em_slam.kth.datasets import (VEHICLE, default_data_dir, load_car_park, load_tree_detections,
-                                         load_victoria_park)
+from online_em_slam.messages.cloud import OBSERVATION_FIELDS, decode_message
+from online_em_slam.datasets.kth import datasets
+from online_em_slam.datasets.kth.beacons import extract_beacons, observation_columns
+from online_em_slam.datasets.kth.datasets import (VEHICLE, default_data_dir, load_car_park, load_tree_detections,
+                                                  load_victoria_park)
 
 INC = math.radians(0.5)
 
@@ -171,8 +171,8 @@ def test_car_park_detections_match_surveyed_beacons(car_park):
 # --------------------------------------------------------------------------- streams and bags
 
 def test_dead_reckoning_matches_acfr_model():
-    from online_em_slam.kth.convert import acfr_rates, dead_reckon
-    from online_em_slam.kth.datasets import OdometryStream
+    from online_em_slam.datasets.kth.convert import acfr_rates, dead_reckon
+    from online_em_slam.datasets.kth.datasets import OdometryStream
     t = np.arange(0, 10.0001, 0.025)
     ctrl = OdometryStream(t, np.full(t.size, 2.0), np.full(t.size, 0.1))
     dr = dead_reckon(ctrl)
@@ -190,7 +190,7 @@ def test_dead_reckoning_matches_acfr_model():
 
 
 def test_streams_car_park(car_park):
-    from online_em_slam.kth.convert import car_park_streams, message_schedule
+    from online_em_slam.datasets.kth.convert import car_park_streams, message_schedule
     s = car_park_streams(car_park)
     assert len(s.observations) == 586 and s.observations.n_detections == 964
     counts = s.message_counts()
@@ -213,7 +213,7 @@ def test_streams_car_park(car_park):
 
 
 def test_streams_victoria_park(victoria_park):
-    from online_em_slam.kth.convert import victoria_park_streams
+    from online_em_slam.datasets.kth.convert import victoria_park_streams
     s = victoria_park_streams(victoria_park)
     assert s.scans is None and s.landmarks is None
     assert s.message_counts() == {"/tf_static": 1, "/odom": 61945, "/tf": 61945, "/control": 61945,
@@ -224,14 +224,14 @@ def test_streams_victoria_park(victoria_park):
 
 @pytest.fixture(scope="module")
 def car_park_bag(tmp_path_factory, car_park):
-    from online_em_slam.kth.convert import car_park_streams, write_bag
+    from online_em_slam.datasets.kth.convert import car_park_streams, write_bag
     out = tmp_path_factory.mktemp("bags") / "car_park"
     counts = write_bag(car_park_streams(car_park), out, progress=False)
     return out, counts
 
 
 def test_bag_round_trip_counts(car_park_bag):
-    from online_em_slam.bagio import bag_topics, count_messages
+    from online_em_slam.bag.bagio import bag_topics, count_messages
     path, counts = car_park_bag
     assert (path / "metadata.yaml").is_file() and list(path.glob("*.mcap"))
     expected = {"/tf_static": 1, "/odom": 5001, "/tf": 5001, "/control": 5001, "/landmark_observations": 586,
@@ -243,7 +243,7 @@ def test_bag_round_trip_counts(car_park_bag):
 
 
 def test_bag_round_trip_values(car_park_bag, car_park):
-    from online_em_slam.bagio import read_bag
+    from online_em_slam.bag.bagio import read_bag
     path, _ = car_park_bag
     cp = car_park
     seen = Counter()
@@ -292,8 +292,8 @@ def test_bag_round_trip_values(car_park_bag, car_park):
 
 
 def test_read_bag_topic_filter_and_sqlite(tmp_path, car_park):
-    from online_em_slam.bagio import read_bag
-    from online_em_slam.kth.convert import car_park_streams, write_bag
+    from online_em_slam.bag.bagio import read_bag
+    from online_em_slam.datasets.kth.convert import car_park_streams, write_bag
     out = tmp_path / "cp_sqlite"
     write_bag(car_park_streams(car_park), out, storage="sqlite3", progress=False)
     assert list(out.glob("*.db3"))
@@ -306,7 +306,7 @@ def test_read_bag_topic_filter_and_sqlite(tmp_path, car_park):
 
 
 def test_convert_main_cli(tmp_path, capsys):
-    from online_em_slam.kth.convert import main
+    from online_em_slam.datasets.convert import main
     out = tmp_path / "cp"
     assert main(["car_park", str(out), "--no-progress"]) == 0
     assert "16803 messages" in capsys.readouterr().out

@@ -13,7 +13,7 @@ import pytest
 
 from online_em_slam.core.mapping import mapfile
 from online_em_slam.core.filter.slam import OnlineEMSlam
-from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for
+from online_em_slam.experiments.simulation import ScenarioConfig, feed, simulate, slam_config_for
 
 
 @pytest.fixture(scope="module")
@@ -313,7 +313,7 @@ def test_confined_path(tmp_path):
 
 def test_metrics_json_is_not_written_through_a_planted_symlink(tmp_path):
     """report.json_dump (metrics.json of every run) used the predictable name metrics.json.tmp."""
-    from online_em_slam.report import json_dump
+    from online_em_slam.offline.report import json_dump
     victim = tmp_path / "victim.txt"
     victim.write_text("precious\n")
     (tmp_path / "metrics.json.tmp").symlink_to(victim)

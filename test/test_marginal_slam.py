@@ -15,8 +15,8 @@ from online_em_slam.core.em.complete import CompleteDataEM
 from online_em_slam.core.em.step import FilterStepData
 from online_em_slam.core.mapping.landmarks import LandmarkTable
 from online_em_slam.core.models.observation import (innovation, inv_det_2x2, landmark_jacobian, noise_covariance,
-                                             predict_observation, sensor_poses)
-from online_em_slam.simulation import ScenarioConfig, feed, landmark_rmse, simulate, slam_config_for
+                                                    predict_observation, sensor_poses)
+from online_em_slam.experiments.simulation import ScenarioConfig, feed, landmark_rmse, simulate, slam_config_for
 
 N = 6
 

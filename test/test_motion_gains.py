@@ -12,7 +12,7 @@ from online_em_slam.core.em.noise.motion_gains import MotionGains, gain_statisti
 from online_em_slam.core.em.noise.motion_noise import MotionSteps, compound
 from online_em_slam.core.filter.slam import OnlineEMSlam
 from online_em_slam.core.models.motion import integrate_segments, propagate, scaled_noise
-from online_em_slam.simulation import ScenarioConfig, simulate, slam_config_for
+from online_em_slam.experiments.simulation import ScenarioConfig, simulate, slam_config_for
 
 
 @pytest.mark.parametrize("model, control, scaled", [("unicycle", [1.0, 0.3], [0.9, 0.6]),

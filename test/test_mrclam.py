@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from online_em_slam.cloud import OBSERVATION_FIELDS, decode_message
-from online_em_slam.mrclam import DROP_REASONS, load_mrclam
-from online_em_slam.mrclam.convert import (STAMP_OFFSET, integrate_velocities, mrclam_streams,
-                                           write_mrclam_bag)
+from online_em_slam.messages.cloud import OBSERVATION_FIELDS, decode_message
+from online_em_slam.datasets.mrclam import DROP_REASONS, load_mrclam
+from online_em_slam.datasets.mrclam.convert import (STAMP_OFFSET, integrate_velocities, mrclam_streams,
+                                                    write_mrclam_bag)
 
 REAL_DATASET1 = Path(__file__).resolve().parents[1] / ".." / "shared" / "datasets" / "mrclam" / "MRCLAM_Dataset1.tar.xz"
 
@@ -200,7 +200,7 @@ EXPECTED_COUNTS = {"/tf_static": 1, "/ground_truth/landmarks": 1, "/control": N_
 
 
 def _read(path, topics=None):
-    from online_em_slam.bagio import read_bag
+    from online_em_slam.bag.bagio import read_bag
     return list(read_bag(path, topics))
 
 
@@ -266,7 +266,7 @@ def test_bag_unknown_ids_sqlite_and_overwrite(dataset, tmp_path):
 # --------------------------------------------------------------------------- command line
 
 def _cli(argv, capsys):
-    from online_em_slam.kth.convert import main
+    from online_em_slam.datasets.convert import main
     code = main(argv)
     out, err = capsys.readouterr()
     return code, out, err
@@ -313,7 +313,7 @@ def test_real_dataset1_robot1_first_60_s(tmp_path, capsys):
     code, text, err = _cli(["mrclam", str(out), "--data-dir", str(REAL_DATASET1), "--robot", "1",
                             "--seconds", "60", "--no-progress"], capsys)
     assert code == 0, err
-    from online_em_slam.bagio import bag_topics
+    from online_em_slam.bag.bagio import bag_topics
     counts = {t: n for t, (_, n) in bag_topics(out).items()}
     assert counts["/odom"] == counts["/control"] == counts["/tf"] == 3000
     assert counts["/ground_truth/position"] == counts["/ground_truth/pose"] == 600
@@ -324,8 +324,8 @@ def test_real_dataset1_robot1_first_60_s(tmp_path, capsys):
 
 
 def test_runner_starts_at_the_first_ground_truth_pose(dataset, tmp_path):
-    from online_em_slam.paramfile import config_from_params, load_params
-    from online_em_slam.runner import choose_initial_pose, read_inputs
+    from online_em_slam.parameters.yaml_file import config_from_params, load_params
+    from online_em_slam.offline.runner import choose_initial_pose, read_inputs
 
     bag = tmp_path / "bag"
     write_mrclam_bag(load_mrclam(dataset, 1), bag, progress=False)

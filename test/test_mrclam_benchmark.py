@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from online_em_slam.mrclam import benchmark
-from online_em_slam.mrclam.table import best_cell, cells, results_markdown
+from online_em_slam.datasets.mrclam import benchmark
+from online_em_slam.datasets.mrclam.table import best_cell, cells, results_markdown
 
 N_LANDMARKS = 15
 SUBJECTS = np.arange(6, 6 + N_LANDMARKS)

@@ -28,11 +28,11 @@ from std_msgs.msg import Header  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 
-from online_em_slam.cloud import decode_message  # noqa: E402
+from online_em_slam.messages.cloud import decode_message  # noqa: E402
 from online_em_slam.ros import conversions as conv  # noqa: E402
 from online_em_slam.ros.node import OnlineEmSlamNode, latched_qos  # noqa: E402
-from online_em_slam.ros.params import ParameterError  # noqa: E402
-from online_em_slam.simulation import ScenarioConfig, simulate  # noqa: E402
+from online_em_slam.parameters.specs import ParameterError  # noqa: E402
+from online_em_slam.experiments.simulation import ScenarioConfig, simulate  # noqa: E402
 
 NAME = "online_em_slam"
 T0 = 1000.0            # stamps start here (a zero stamp means "unstamped" for controls)

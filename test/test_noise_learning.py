@@ -26,8 +26,8 @@ from online_em_slam.core.em.noise.range_fit import RangeBins, range_noise_fit
 from online_em_slam.core.em.noise.serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation
 from online_em_slam.core.models.observation import information_noise, noise_covariance
 from online_em_slam.core.types import Observations
-from online_em_slam.evaluation import landmark_pairs_by_id, map_error_split
-from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for
+from online_em_slam.offline.evaluation import landmark_pairs_by_id, map_error_split
+from online_em_slam.experiments.simulation import ScenarioConfig, feed, simulate, slam_config_for
 
 # The truth of the simulated runs: noise that differs from every default.
 TRUTH = dict(n_landmarks=40, sigma_range=0.3, sigma_bearing=0.02, rho=0.0, sigma_speed=0.3, sigma_steering=0.03)
@@ -252,7 +252,7 @@ def test_bad_settings_are_refused_by_name(section, message):
 
 
 def test_parameters_take_a_list_of_names_or_one_name():
-    from online_em_slam.ros.params import build
+    from online_em_slam.parameters.specs import build
     config, _ = build({"noise_learning.enabled": True, "noise_learning.learn": ["range", "motion_scale"]})
     assert config.noise_learning.learn == ("range", "motion_scale")
     assert SlamConfig.from_dict({"noise_learning": {"learn": "range"}}).noise_learning.learn == ("range",)
@@ -407,8 +407,8 @@ def test_a_flood_of_identical_or_wild_observations_leaves_the_learned_noise_fini
 
 def test_noise_yaml_is_a_parameter_file_with_the_values_in_use(tmp_path):
     """What `online-em-slam run` writes as DIR/noise.yaml (report.write_noise_params) loads back."""
-    from online_em_slam.paramfile import config_from_params
-    from online_em_slam.report import write_noise_params
+    from online_em_slam.parameters.yaml_file import config_from_params
+    from online_em_slam.offline.report import write_noise_params
     landmarks = np.array([[10.0, 5.0], [15.0, -4.0], [25.0, 3.0]])
     rng = np.random.default_rng(5)
     scans = []

@@ -5,15 +5,15 @@ from pathlib import Path
 import pytest
 import yaml
 
-from online_em_slam.ros.params import all_specs
-from online_em_slam.ros.params_file import generate
+from online_em_slam.parameters.specs import all_specs
+from online_em_slam.parameters.reference_file import generate
 
 CONFIG = Path(__file__).resolve().parents[1] / "config" / "online_em_slam.yaml"
 
 
 def test_the_committed_parameter_file_is_the_generated_one():
     assert CONFIG.read_text() == generate(), (
-        "config/online_em_slam.yaml is stale: python -m online_em_slam.ros.params_file > config/online_em_slam.yaml")
+        "config/online_em_slam.yaml is stale: python -m online_em_slam.parameters.reference_file > config/online_em_slam.yaml")
 
 
 def test_every_spec_appears_once_with_its_default():
@@ -82,7 +82,7 @@ def test_list_entries_are_checked_against_the_metadata_range():
 
 
 def test_ros_specs_and_descriptors_come_from_the_metadata():
-    from online_em_slam.ros.params import constraint_text, core_specs, descriptor
+    from online_em_slam.parameters.specs import constraint_text, core_specs, descriptor
     infos = {name: info for name, _, info in _core_fields()}
     specs = core_specs()
     assert [spec.name for spec in specs] == list(infos)
@@ -103,10 +103,10 @@ def test_ros_specs_and_descriptors_come_from_the_metadata():
 
 
 def test_every_node_setting_is_read_from_a_declared_parameter():
-    """NodeSettings is built from the node specs by name (ros/params.py SETTING_PARAMETERS for the others)."""
+    """NodeSettings is built from the node specs by name (parameters/specs.py SETTING_PARAMETERS for the others)."""
     from dataclasses import fields
 
-    from online_em_slam.ros.params import SETTING_PARAMETERS, NODE_SPECS, NodeSettings, build
+    from online_em_slam.parameters.specs import SETTING_PARAMETERS, NODE_SPECS, NodeSettings, build
     names = {spec.name for spec in NODE_SPECS}
     for f in fields(NodeSettings):
         source = SETTING_PARAMETERS.get(f.name, f.name)

@@ -10,7 +10,7 @@ import pytest
 
 from online_em_slam.core.config import AssociationConfig, FilterConfig, ObservationNoiseConfig, SlamConfig
 from online_em_slam.core.filter.slam import OnlineEMSlam
-from online_em_slam.ros.params import ParameterError, build
+from online_em_slam.parameters.specs import ParameterError, build
 
 
 # ----------------------------------------------------------------- defect 3: parameters
@@ -68,7 +68,7 @@ def test_every_accepted_core_parameter_value_survives_a_reset_and_steps():
     build() (what the node's set-parameters callback runs) or the estimator built
     from it resets and runs; none is accepted and then crashes (defect 3)."""
     from online_em_slam.core.types import Observations
-    from online_em_slam.ros.params import core_specs
+    from online_em_slam.parameters.specs import core_specs
     tried = accepted = 0
     for spec in core_specs():
         if isinstance(spec.default, (bool, str)):
@@ -107,7 +107,7 @@ def make_cloud(columns: dict, layout):
     from sensor_msgs.msg import PointCloud2, PointField
     from std_msgs.msg import Header
 
-    from online_em_slam.cloud import build_message
+    from online_em_slam.messages.cloud import build_message
     return build_message(PointCloud2, PointField, Header(), columns, layout)
 
 
@@ -173,7 +173,7 @@ def test_zero_ranges_and_huge_bearings_are_dropped_and_counted_bearings_wrapped(
 
 def test_landmark_ids_beyond_int32_are_not_published_wrapped():
     from std_msgs.msg import Header
-    from online_em_slam.cloud import decode_message
+    from online_em_slam.messages.cloud import decode_message
     from online_em_slam.core.types import LandmarkMap
     from online_em_slam.ros import conversions as conv
     ids = np.array([5, 2 ** 31 + 5, 2 ** 31 - 1, 2 ** 32 + 5])
@@ -241,7 +241,7 @@ def test_path_max_length_range_is_what_the_node_can_serve():
 
 # ----------------------------------------------------------------- defect 8: map paths
 def test_map_file_is_read_only_and_confined_in_the_parameter_table():
-    from online_em_slam.ros.params import NODE_SPECS
+    from online_em_slam.parameters.specs import NODE_SPECS
     specs = {spec.name: spec for spec in NODE_SPECS}
     assert specs["map_file"].read_only and specs["map_directory"].read_only
 

@@ -27,10 +27,10 @@ N_CLOUDS = 40
 
 def write_small_bag(path):
     """/control at 200 Hz (2 s) and /landmark_observations at 20 Hz, plus /tf_static."""
-    from online_em_slam.bagio import write_bag
-    from online_em_slam.cloud import OBSERVATION_FIELDS, encode
-    from online_em_slam.kth.beacons import observation_columns
-    from online_em_slam.kth.convert import jazzy_typestore
+    from online_em_slam.bag.bagio import write_bag
+    from online_em_slam.messages.cloud import OBSERVATION_FIELDS, encode
+    from online_em_slam.datasets.kth.beacons import observation_columns
+    from online_em_slam.bag.bagio import jazzy_typestore
 
     ts = jazzy_typestore()
     T = ts.types
@@ -81,7 +81,7 @@ def _tf2_available() -> bool:
 
 
 def test_message_class_resolution():
-    from online_em_slam.replay import message_class, parse_wait
+    from online_em_slam.bag.replay import message_class, parse_wait
     from sensor_msgs.msg import PointCloud2
     assert message_class("sensor_msgs/msg/PointCloud2") is PointCloud2
     assert message_class("sensor_msgs/PointCloud2") is PointCloud2
@@ -95,7 +95,7 @@ def test_replay_delivers_every_message(tmp_path):
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import PointCloud2
 
-    from online_em_slam.cloud import decode_message
+    from online_em_slam.messages.cloud import decode_message
 
     bag = tmp_path / "small"
     write_small_bag(bag)
@@ -113,7 +113,7 @@ def test_replay_delivers_every_message(tmp_path):
         executor.add_node(node)
 
         env = dict(os.environ, ROS_DOMAIN_ID=DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-        cmd = [sys.executable, "-m", "online_em_slam.replay", str(bag), "--rate", "0", "--clock",
+        cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", "0", "--clock",
                "--wait-subscribers", "/control:1", "/landmark_observations:1", "/clock:1",
                "--wait-timeout", "15", "--quiet"]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
@@ -153,10 +153,10 @@ def test_beacon_node_publishes_observations():
     """BeaconNode: LaserScan on `scan` -> PointCloud2 on `landmark_observations`, same header."""
     from sensor_msgs.msg import LaserScan, PointCloud2
 
-    from online_em_slam.cloud import decode_message
-    from online_em_slam.kth.beacon_node import BeaconNode
-    from online_em_slam.kth.beacons import extract_beacons
-    from online_em_slam.kth.datasets import load_car_park
+    from online_em_slam.messages.cloud import decode_message
+    from online_em_slam.datasets.kth.beacon_node import BeaconNode
+    from online_em_slam.datasets.kth.beacons import extract_beacons
+    from online_em_slam.datasets.kth.datasets import load_car_park
 
     cp = load_car_park()
     sc = cp.scans
@@ -208,11 +208,11 @@ def test_replay_of_car_park_into_a_live_node_loses_nothing(tmp_path):
     every input reaches the node, none is dropped, and the beacon map is right."""
     from sensor_msgs.msg import PointCloud2
 
-    from online_em_slam.runner import choose_initial_pose, read_inputs
-    from online_em_slam.evaluation import landmark_metrics
-    from online_em_slam.kth.convert import convert
-    from online_em_slam.paramfile import config_from_params, load_params
-    from online_em_slam.cloud import decode_message
+    from online_em_slam.offline.runner import choose_initial_pose, read_inputs
+    from online_em_slam.offline.evaluation import landmark_metrics
+    from online_em_slam.datasets.kth.convert import convert
+    from online_em_slam.parameters.yaml_file import config_from_params, load_params
+    from online_em_slam.messages.cloud import decode_message
     from online_em_slam.ros.node import OnlineEmSlamNode
     from rclpy.parameter import Parameter
 
@@ -244,7 +244,7 @@ def test_replay_of_car_park_into_a_live_node_loses_nothing(tmp_path):
         executor.add_node(node)
         executor.add_node(sink)
         env = dict(os.environ, ROS_DOMAIN_ID=DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-        cmd = [sys.executable, "-m", "online_em_slam.replay", str(bag), "--rate", "20",
+        cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", "20",
                "--topics", "/control", "/odom", "/landmark_observations",
                "--wait-subscribers", "/control:1", "/odom:1", "/landmark_observations:1",
                "--wait-timeout", "15", "--quiet"]

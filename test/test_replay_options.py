@@ -11,7 +11,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from online_em_slam import replay_options as ro
+from online_em_slam.bag import replay_options as ro
 
 S = 1_000_000_000
 
@@ -135,7 +135,7 @@ def test_live_replay_with_options(monkeypatch, tmp_path):
         resume = node.create_client(Trigger, "/bag_replay/resume")
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
-        cmd = [sys.executable, "-m", "online_em_slam.replay", str(bag), "--rate", "2", "--start-paused",
+        cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", "2", "--start-paused",
                "--remap", "/control:=/ctl", "--exclude", "/landmark_observations", "--start-offset", "1.0",
                "--clock", "50", "--wait-subscribers", "/control:1", "--quiet"]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)

@@ -9,7 +9,7 @@ from online_em_slam.core.filter.slam import OnlineEMSlam
 from online_em_slam.core.types import Observations
 from online_em_slam.pipeline import CONTROL, OBSERVATIONS, Feeder
 from online_em_slam.pipeline.inputs import Input
-from online_em_slam.simulation import ScenarioConfig, simulate, slam_config_for
+from online_em_slam.experiments.simulation import ScenarioConfig, simulate, slam_config_for
 
 
 @pytest.fixture(scope="module")

@@ -11,8 +11,8 @@ import pytest
 
 pytest.importorskip("rosbags")
 
-from online_em_slam import runner  # noqa: E402
-from online_em_slam.paramfile import config_from_params  # noqa: E402
+from online_em_slam.offline import runner  # noqa: E402
+from online_em_slam.parameters.yaml_file import config_from_params  # noqa: E402
 from online_em_slam.pipeline import OBSERVATIONS, Feeder, Input  # noqa: E402
 from online_em_slam.pipeline import input_pipeline  # noqa: E402
 from online_em_slam.pipeline.sequencer import SILENT_LAG_FACTOR  # noqa: E402
@@ -28,10 +28,10 @@ LATE = (T0 + 10.0, 3.0)      # one more cloud, stamped T0 + 10 s, logged 3 s lat
 def _write_bag(path) -> int:
     """/control at 40 Hz for 60 s, /landmark_observations at 5 Hz for 5 s (logged 0.5 s after their
     stamps), one cloud logged 3 s after its stamp; returns the number of input messages."""
-    from online_em_slam.bagio import write_bag
-    from online_em_slam.cloud import OBSERVATION_FIELDS, encode
-    from online_em_slam.kth.beacons import observation_columns
-    from online_em_slam.kth.convert import jazzy_typestore
+    from online_em_slam.bag.bagio import write_bag
+    from online_em_slam.messages.cloud import OBSERVATION_FIELDS, encode
+    from online_em_slam.datasets.kth.beacons import observation_columns
+    from online_em_slam.bag.bagio import jazzy_typestore
 
     ts = jazzy_typestore()
     T = ts.types

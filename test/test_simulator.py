@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from online_em_slam.core.models.observation import innovation, noise_covariance, predict_observation
-from online_em_slam.simulation import (ScenarioConfig, Scenario, feed, landmark_rmse, simulate,
-                                           slam_config_for)
+from online_em_slam.experiments.simulation import (ScenarioConfig, Scenario, feed, landmark_rmse, simulate,
+                                                   slam_config_for)
 
 
 @pytest.fixture(scope="module")

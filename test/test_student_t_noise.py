@@ -20,8 +20,8 @@ from online_em_slam.core.config import AssociationConfig, NoiseLearningConfig, O
 from online_em_slam.core.em.noise.observation import student_t_dof
 from online_em_slam.core.filter.association import Gates
 from online_em_slam.core.models.observation import (component_precision_weight, mahalanobis_2d, noise_loglik,
-                                                     student_t_weight)
-from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for
+                                                    student_t_weight)
+from online_em_slam.experiments.simulation import ScenarioConfig, feed, simulate, slam_config_for
 
 S = np.array([[0.09, 0.001], [0.001, 0.0004]])
 T_NOISE = ObservationNoiseConfig(model="student_t", dof=4.0, sigma_range=0.3, sigma_bearing=0.02, rho=0.001)

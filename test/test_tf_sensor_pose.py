@@ -20,7 +20,7 @@ from std_msgs.msg import Header  # noqa: E402
 from online_em_slam.core import Observations  # noqa: E402
 from online_em_slam.core.config import SensorConfig  # noqa: E402
 from online_em_slam.ros import conversions as conv  # noqa: E402
-from online_em_slam.ros.params import NodeSettings  # noqa: E402
+from online_em_slam.parameters.specs import NodeSettings  # noqa: E402
 from online_em_slam.ros.tf import SensorFrames, reexpress  # noqa: E402
 
 T0 = 1000.0

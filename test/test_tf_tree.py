@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from online_em_slam.bagio import read_bag
+from online_em_slam.bag.bagio import read_bag
 
 
 @pytest.fixture(scope="module")
 def car_park_bag(tmp_path_factory):
-    from online_em_slam.kth.convert import convert
+    from online_em_slam.datasets.kth.convert import convert
     bag = tmp_path_factory.mktemp("bags") / "car_park"
     convert("car_park", bag, progress=False)
     return bag
@@ -72,7 +72,7 @@ def test_static_base_link_to_laser_and_map_to_gps(car_park_bag):
 
 
 def test_no_map_to_gps_option(tmp_path):
-    from online_em_slam.kth.convert import main
+    from online_em_slam.datasets.convert import main
     out = tmp_path / "cp"
     assert main(["car_park", str(out), "--no-progress", "--no-map-to-gps"]) == 0
     (msg,) = [m for _, _, m in read_bag(out, ["/tf_static"])]

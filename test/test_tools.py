@@ -69,7 +69,7 @@ def test_topic_echo_prints_a_pose(ros):
     _, node, env = ros
     pub = node.create_publisher(PoseWithCovarianceStamped, POSE_TOPIC, _latched())
     pub.publish(_pose_msg(12.5, 3.25, -1.5, 0.3))       # latched: echo gets it on joining
-    out = subprocess.run(_tool("topic_tool", "echo", POSE_TOPIC, "--once", "--timeout", "20"),
+    out = subprocess.run(_tool("bag.topic_tool", "echo", POSE_TOPIC, "--once", "--timeout", "20"),
                          env=env, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     text = out.stdout
@@ -80,7 +80,7 @@ def test_topic_echo_prints_a_pose(ros):
     # may miss a topic that exists, so list again (a few times) before concluding.
     wanted = f"{POSE_TOPIC} [geometry_msgs/msg/PoseWithCovarianceStamped]"
     for _ in range(4):
-        listing = subprocess.run(_tool("topic_tool", "list", "-t", "--spin-time", "3"),
+        listing = subprocess.run(_tool("bag.topic_tool", "list", "-t", "--spin-time", "3"),
                                  env=env, capture_output=True, text=True, timeout=60)
         if wanted in listing.stdout:
             break
@@ -91,7 +91,7 @@ def test_topic_hz_and_missing_topic(ros):
     from std_msgs.msg import String
     _, node, env = ros
     pub = node.create_publisher(String, "/chatter", 10)
-    proc = subprocess.Popen(_tool("topic_tool", "hz", "/chatter", "--duration", "2.5", "--timeout", "20"),
+    proc = subprocess.Popen(_tool("bag.topic_tool", "hz", "/chatter", "--duration", "2.5", "--timeout", "20"),
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 30
     while proc.poll() is None and time.monotonic() < deadline:
@@ -101,7 +101,7 @@ def test_topic_hz_and_missing_topic(ros):
     assert proc.returncode == 0, err
     rates = [float(line.split(":")[1]) for line in out.splitlines() if line.startswith("average rate")]
     assert rates and 20 < rates[-1] < 60
-    missing = subprocess.run(_tool("topic_tool", "echo", "/nobody", "--once", "--timeout", "0.5"),
+    missing = subprocess.run(_tool("bag.topic_tool", "echo", "/nobody", "--once", "--timeout", "0.5"),
                              env=env, capture_output=True, text=True, timeout=60)
     assert missing.returncode == 1 and "no publisher" in missing.stderr
 
@@ -109,7 +109,7 @@ def test_topic_hz_and_missing_topic(ros):
 def test_yaml_formatting_of_arrays_and_nested_messages():
     from geometry_msgs.msg import Pose, PoseArray
 
-    from online_em_slam.topic_tool import MAX_ARRAY, message_to_yaml
+    from online_em_slam.bag.topic_tool import MAX_ARRAY, message_to_yaml
     msg = PoseArray(poses=[Pose() for _ in range(MAX_ARRAY + 3)])
     msg.poses[0].position.x = 1.5
     lines = message_to_yaml(msg)
@@ -131,10 +131,10 @@ def _truth_track():
 
 
 def _write_truth_bag(path, track, landmarks):
-    from online_em_slam.bagio import write_bag
-    from online_em_slam.cloud import encode
-    from online_em_slam.evaluation import sensor_points
-    from online_em_slam.kth.convert import jazzy_typestore
+    from online_em_slam.bag.bagio import write_bag
+    from online_em_slam.messages.cloud import encode
+    from online_em_slam.offline.evaluation import sensor_points
+    from online_em_slam.bag.bagio import jazzy_typestore
 
     ts = jazzy_typestore()
     T = ts.types
@@ -159,7 +159,7 @@ def _write_truth_bag(path, track, landmarks):
     events = [(track[0, 0], "/tf_static", "tf2_msgs/msg/TFMessage", T["tf2_msgs/msg/TFMessage"](transforms=[laser])),
               (track[0, 0], "/ground_truth/landmarks", "sensor_msgs/msg/PointCloud2", cloud)]
     # Odometry starts at (0, 0, 0): the truth track seen from its first pose.
-    from online_em_slam.evaluate_bag import compose, inverse
+    from online_em_slam.offline.evaluate_bag import compose, inverse
     odom = compose(inverse(track[0, 1:4]), track[:, 1:4])
     gps = sensor_points(track[:, 1:4], OFFSET)
     for k, (t, x, y, yaw) in enumerate(np.column_stack([track[:, 0], odom])):
@@ -181,7 +181,7 @@ def _landmark_cloud(xy, n_obs):
     from sensor_msgs.msg import PointCloud2, PointField
     from std_msgs.msg import Header
 
-    from online_em_slam.cloud import LANDMARK_FIELDS, build_message
+    from online_em_slam.messages.cloud import LANDMARK_FIELDS, build_message
     cols = {"x": xy[:, 0], "y": xy[:, 1], "z": np.zeros(len(xy)), "id": np.arange(len(xy)), "n_obs": n_obs}
     return build_message(PointCloud2, PointField, Header(frame_id="map"), cols, LANDMARK_FIELDS)
 
@@ -214,9 +214,9 @@ def test_record_then_evaluate_a_node_run(ros, tmp_path):
     from rclpy.qos import DurabilityPolicy, QoSProfile
     from sensor_msgs.msg import PointCloud2
 
-    from online_em_slam import cli
-    from online_em_slam.evaluate_bag import compose, inverse
-    from online_em_slam.tum import read_tum
+    from online_em_slam.offline import cli
+    from online_em_slam.offline.evaluate_bag import compose, inverse
+    from online_em_slam.offline.tum import read_tum
 
     _, node, env = ros
     track = _truth_track()
@@ -233,7 +233,7 @@ def test_record_then_evaluate_a_node_run(ros, tmp_path):
     pose_pub = node.create_publisher(PoseWithCovarianceStamped, POSE_TOPIC, deep_latched)
     map_pub = node.create_publisher(PointCloud2, LANDMARKS_TOPIC, deep_latched)
     out = tmp_path / "recorded"
-    proc = subprocess.Popen(_tool("record", str(out), "--topics", POSE_TOPIC, LANDMARKS_TOPIC),
+    proc = subprocess.Popen(_tool("bag.record", str(out), "--topics", POSE_TOPIC, LANDMARKS_TOPIC),
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert _wait(lambda: pose_pub.get_subscription_count() and map_pub.get_subscription_count(), 30)
@@ -274,9 +274,9 @@ def test_record_and_evaluate_car_park_match_run(ros, tmp_path):
     frame into the GPS frame; run starts at the GPS-derived pose)."""
     from pathlib import Path
 
-    from online_em_slam import cli
-    from online_em_slam.bagio import read_bag
-    from online_em_slam.kth.convert import convert
+    from online_em_slam.offline import cli
+    from online_em_slam.bag.bagio import read_bag
+    from online_em_slam.datasets.kth.convert import convert
 
     context, node, env = ros
     params = str(Path(__file__).resolve().parent.parent / "config" / "hand_tuned" / "car_park.yaml")
@@ -298,13 +298,13 @@ def test_record_and_evaluate_car_park_match_run(ros, tmp_path):
     spinner.start()
     procs = {}
     try:
-        procs["record"] = subprocess.Popen(_tool("record", str(tmp_path / "rec"), "--no-inputs", "--quiet"),
+        procs["record"] = subprocess.Popen(_tool("bag.record", str(tmp_path / "rec"), "--no-inputs", "--quiet"),
                                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         procs["node"] = subprocess.Popen(
             _tool("ros.node", "--ros-args", "--params-file", params, "-p", "filter.seed:=0",
                   "-p", "publish_particles:=false", "--log-level", "error"),
             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        replay = subprocess.run(_tool("replay", str(bag), "--rate", "20", "--topics", "/control", "/odom",
+        replay = subprocess.run(_tool("bag.replay", str(bag), "--rate", "20", "--topics", "/control", "/odom",
                                       "/landmark_observations", "--wait-subscribers", "/control:1", "/odom:1",
                                       "/landmark_observations:1", "--wait-timeout", "30", "--quiet"),
                                 env=env, capture_output=True, text=True, timeout=120)

@@ -38,10 +38,10 @@ from online_em_slam.core.models.angles import wrap_angle
 from online_em_slam.core.models.observation import (component_precision_weight, inverse_observation,
                                                     noise_covariance, noise_loglik, predict_observation,
                                                     sensor_poses)
-from online_em_slam.evaluation import landmark_metrics
-from online_em_slam.paramfile import config_from_params, load_params
+from online_em_slam.offline.evaluation import landmark_metrics
+from online_em_slam.parameters.yaml_file import config_from_params, load_params
 from online_em_slam.pipeline import CONTROL, OBSERVATIONS
-from online_em_slam.runner import read_inputs
+from online_em_slam.offline.runner import read_inputs
 
 PRIOR_STD = np.array([1e-3, 1e-3, 1e-4])      # the estimators' floor for initial_pose_std = 0
 

@@ -5,9 +5,9 @@
 """
 import sys
 
-from online_em_slam.paramfile import config_from_params, load_params
-from online_em_slam.report import evaluate
-from online_em_slam.runner import choose_initial_pose, feed, make_estimator, read_inputs
+from online_em_slam.parameters.yaml_file import config_from_params, load_params
+from online_em_slam.offline.report import evaluate
+from online_em_slam.offline.runner import choose_initial_pose, feed, make_estimator, read_inputs
 
 bag = sys.argv[1] if len(sys.argv) > 1 else "out/cp_bag"
 file_values = load_params("config/hand_tuned/car_park.yaml")

@@ -40,7 +40,7 @@ def params_file(out: Path, name: str, overrides: dict) -> Path:
 def run_one(bag: str, out: Path, name: str, seed: int) -> dict:
     method, overrides = VARIANTS[name]
     target = out / f"{name.replace(' ', '_').replace('(', '').replace(')', '')}-{seed}"
-    cmd = [sys.executable, "-m", "online_em_slam.cli", "run", bag, "--params",
+    cmd = [sys.executable, "-m", "online_em_slam.offline.cli", "run", bag, "--params",
            str(params_file(out, name, overrides)), "--output", str(target), "--seed", str(seed),
            "--method", method, "--no-plot"]
     subprocess.run(cmd, check=True, capture_output=True)

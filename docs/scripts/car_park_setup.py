@@ -10,9 +10,9 @@ PARAMS = Path(__file__).resolve().parents[2] / "config" / "hand_tuned" / "car_pa
 def car_park(out: Path, seed: int = 0):
     """(bag, params path, file values, SlamConfig, NodeSettings, bag inputs, initial pose); the
     bag is converted into ``out/car_park_bag`` the first time."""
-    from online_em_slam.kth.convert import convert
-    from online_em_slam.paramfile import config_from_params, load_params
-    from online_em_slam.runner import choose_initial_pose, read_inputs
+    from online_em_slam.datasets.kth.convert import convert
+    from online_em_slam.parameters.yaml_file import config_from_params, load_params
+    from online_em_slam.offline.runner import choose_initial_pose, read_inputs
 
     out.mkdir(parents=True, exist_ok=True)
     bag = out / "car_park_bag"

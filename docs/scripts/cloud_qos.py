@@ -26,7 +26,7 @@ import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
-from online_em_slam.cloud import build_message
+from online_em_slam.messages.cloud import build_message
 n, rate, seconds, reliable = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3]), sys.argv[4] == "reliable"
 rclpy.init()
 node = rclpy.create_node("cloud_qos_publisher")

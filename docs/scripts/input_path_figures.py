@@ -76,7 +76,7 @@ def record(bag, rate, timeout=400.0):
         node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QoSProfile(depth=50))
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
-        cmd = [sys.executable, "-m", "online_em_slam.replay", str(bag), "--rate", str(rate), "--clock",
+        cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", str(rate), "--clock",
                "--topics", *INPUTS, "--wait-subscribers", *(f"{t}:1" for t in INPUTS), "/clock:1",
                "--wait-timeout", "60", "--start-delay", "2", "--quiet"]
         replay = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -130,9 +130,9 @@ def _largest_gaps(poses, n=3):
 
 def compare(seen, inputs, config, settings, initial):
     """Node outputs against the offline runner (runner.feed, the bag streamed) on the same bag."""
-    from online_em_slam import runner as cli
-    from online_em_slam.cloud import decode_message
-    from online_em_slam.evaluation import sensor_points, trajectory_metrics
+    from online_em_slam.offline import runner as cli
+    from online_em_slam.messages.cloud import decode_message
+    from online_em_slam.offline.evaluation import sensor_points, trajectory_metrics
 
     runner = cli.feed(cli.make_estimator("online_em", config, initial.pose), inputs)
     offset = (config.sensor.offset_x, config.sensor.offset_y)

@@ -35,7 +35,7 @@ from test_noise_learning import TRUTH  # noqa: E402
 from online_em_slam.core.config import MotionConfig, SensorConfig  # noqa: E402
 from online_em_slam.core.models.motion import bicycle  # noqa: E402
 from online_em_slam.core.models.observation import landmark_jacobian, pose_jacobian  # noqa: E402
-from online_em_slam.simulation import ScenarioConfig, simulate, slam_config_for  # noqa: E402
+from online_em_slam.experiments.simulation import ScenarioConfig, simulate, slam_config_for  # noqa: E402
 
 MEASURED = Path(__file__).resolve().parents[1] / "measurements" / "noise_learning_seeds_fifth_pass.json"
 

@@ -41,7 +41,7 @@ from online_em_slam.core.em.noise.motion_noise import MotionSteps, prediction_st
 from online_em_slam.core.em.observed_information import motion_residual  # noqa: E402
 from online_em_slam.core.models.motion import bicycle  # noqa: E402
 from online_em_slam.core.models.observation import innovation, pose_jacobian, predict_observation  # noqa: E402
-from online_em_slam.simulation import ScenarioConfig, simulate, slam_config_for  # noqa: E402
+from online_em_slam.experiments.simulation import ScenarioConfig, simulate, slam_config_for  # noqa: E402
 
 SENSOR = SensorConfig()
 GRID = np.exp(np.linspace(np.log(0.55), np.log(1.8), 15))

@@ -29,7 +29,7 @@ from test_noise_learning import (PARTICLES, TRUTH, map_errors, started_wrong,  #
 
 from online_em_slam.core import OnlineEMSlam  # noqa: E402
 from online_em_slam.core.config import NoiseLearningConfig, replace_section  # noqa: E402
-from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for  # noqa: E402
+from online_em_slam.experiments.simulation import ScenarioConfig, feed, simulate, slam_config_for  # noqa: E402
 
 FACTORS = (0.0, 3.0, 1 / 3)        # 0: given the truth, learning off
 

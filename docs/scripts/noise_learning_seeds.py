@@ -32,8 +32,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "test"))
 from test_noise_learning import PARTICLES, TRUTH, run, started_wrong, true_motion_scale  # noqa: E402
 
 from online_em_slam.core.config import NoiseLearningConfig, replace_section  # noqa: E402
-from online_em_slam.evaluation import landmark_pairs_by_id, map_error_split  # noqa: E402
-from online_em_slam.simulation import ScenarioConfig, simulate, slam_config_for  # noqa: E402
+from online_em_slam.offline.evaluation import landmark_pairs_by_id, map_error_split  # noqa: E402
+from online_em_slam.experiments.simulation import ScenarioConfig, simulate, slam_config_for  # noqa: E402
 
 STARTS = {"true noise": None, "3x too large": 3.0, "3x too small": 1 / 3}
 OUTLIERS = {"no outliers": 0.0, "5 % outliers": 0.05}

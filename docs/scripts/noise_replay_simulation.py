@@ -13,7 +13,7 @@ import sys, time
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[2] / "test"))
 from dataclasses import replace
 from test_noise_learning import TRUTH, PARTICLES, run, map_errors, started_wrong, true_motion_scale
-from online_em_slam.simulation import ScenarioConfig, simulate, slam_config_for
+from online_em_slam.experiments.simulation import ScenarioConfig, simulate, slam_config_for
 from online_em_slam.core.config import replace_section
 import numpy as np
 rows = []

@@ -21,8 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "test"))
 from test_noise_learning import PARTICLES, TRUTH, run  # noqa: E402
-from online_em_slam.evaluation import landmark_pairs_by_id, map_error_split  # noqa: E402
-from online_em_slam.simulation import ScenarioConfig, simulate, slam_config_for  # noqa: E402
+from online_em_slam.offline.evaluation import landmark_pairs_by_id, map_error_split  # noqa: E402
+from online_em_slam.experiments.simulation import ScenarioConfig, simulate, slam_config_for  # noqa: E402
 
 
 def errs(slam, sc):

@@ -70,7 +70,7 @@ def main(argv=None) -> int:
         rec.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QoSProfile(depth=50))
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(rec)
-        cmd = [sys.executable, "-m", "online_em_slam.replay", str(bag), "--rate", str(args.rate), "--clock",
+        cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", str(args.rate), "--clock",
                "--loop", "--topics", *INPUTS, "--wait-subscribers", *(f"{t}:1" for t in INPUTS), "/clock:1",
                "--wait-timeout", "60", "--start-delay", "2", "--quiet"]
         replay = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

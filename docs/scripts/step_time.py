@@ -14,7 +14,7 @@ import os
 import time
 
 from online_em_slam.core import OnlineEMSlam
-from online_em_slam.simulation import ScenarioConfig, feed, simulate, slam_config_for
+from online_em_slam.experiments.simulation import ScenarioConfig, feed, simulate, slam_config_for
 
 
 def cpu_ms_per_step(seed: int, m_step: str, particles: int) -> float:

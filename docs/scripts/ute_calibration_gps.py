@@ -8,7 +8,7 @@ residuals (optimistic).
 import sys
 import numpy as np
 from scipy.optimize import least_squares
-from online_em_slam.kth.datasets import load_car_park, load_victoria_park, VEHICLE
+from online_em_slam.datasets.kth.datasets import load_car_park, load_victoria_park, VEHICLE
 
 L, H, A, B = VEHICLE.wheelbase, VEHICLE.encoder_offset, VEHICLE.sensor_x, VEHICLE.sensor_y
 

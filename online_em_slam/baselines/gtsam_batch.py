@@ -93,7 +93,7 @@ def dead_reckoning(scenario, config: SlamConfig, n_landmarks: int) -> tuple[np.n
     return np.array(poses), landmarks
 
 
-def batch_estimate(scenario, config: SlamConfig | None = None, n_landmarks: int | None = None,
+def batch_estimate(scenario, config: SlamConfig, n_landmarks: int | None = None,
                    max_iterations: int = 100, initial_pose_std: tuple[float, float, float] = (1e-3, 1e-3, 1e-4)
                    ) -> BatchResult:
     """Build (B1)-(B2) from a Scenario-like run and optimise it.
@@ -106,9 +106,6 @@ def batch_estimate(scenario, config: SlamConfig | None = None, n_landmarks: int 
     """
     import gtsam  # optional dependency, see module docstring
 
-    if config is None:
-        from ..simulation import slam_config_for
-        config = slam_config_for(scenario)
     sensor = config.sensor
     if sensor.offset_x != 0.0 or sensor.offset_y != 0.0:
         raise ValueError("batch_estimate supports sensor.offset_x = offset_y = 0 only")
@@ -181,14 +178,3 @@ def _factor_graph(gtsam, scenario, config: SlamConfig, n_landmarks: int, initial
             graph.add(gtsam.BearingRangeFactor2D(X(k), L(int(j)), gtsam.Rot2(float(b)), float(r),
                                                  gtsam.noiseModel.Gaussian.Covariance(cov)))
     return graph, values
-
-
-_INPUTS_NAMES = ("InputsBatchResult", "batch_from_inputs", "batch_on_bag")
-
-
-def __getattr__(name: str):
-    """The recorded-inputs batch of :mod:`.gtsam_inputs`, imported on first use (it imports this module)."""
-    if name in _INPUTS_NAMES:
-        from . import gtsam_inputs
-        return getattr(gtsam_inputs, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -43,7 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.config import SlamConfig
-from ..core.em.complete import _inverse_observation_spread
+from ..core.em.complete import inverse_observation_spread
 from ..core.em.step import FilterStepData
 from ..core.mapping.landmarks import LandmarkTable
 from ..core.models.observation import inv_det_2x2
@@ -148,7 +148,7 @@ class RecursiveMLMapUpdate:
         gamma = step_sizes(self.count[rows], self.exponent)[:, None, None]
         observed = np.einsum("n,npij->pij", data.weights, information)
         self.information[rows] = (1.0 - gamma) * self.information[rows] + gamma * observed
-        spread = _inverse_observation_spread(data.sensor, data.y, data.prior_weights)
+        spread = inverse_observation_spread(data.sensor, data.y, data.prior_weights)
         self.spread[rows] = (1.0 - gamma) * self.spread[rows] + gamma * spread
         self.inv_n[rows] = (1.0 - gamma[:, 0, 0]) ** 2 * self.inv_n[rows] + gamma[:, 0, 0] ** 2
 

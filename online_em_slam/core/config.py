@@ -5,7 +5,7 @@ Every field has an SI unit and a default that reproduces the seed experiment
 sigma_r = 0.5 m, sigma_b = pi/60 rad, rho = 0.01).  Each field is declared with
 :func:`param`: its description and allowed range or choices live in the field's
 metadata (:class:`ParamInfo`), the one source of the checks of ``validate``, of
-the ROS parameter descriptors and of config/online_em_slam.yaml (ros/params.py,
+the ROS parameter descriptors and of config/online_em_slam.yaml (parameters/specs.py,
 :func:`core_parameters`).  ``validate`` raises ``ValueError`` naming the
 offending field and its allowed range, so the ROS node and the command-line
 tools can refuse bad values with one message; checks that are not a range
@@ -316,7 +316,7 @@ class SlamConfig:
 
 def core_parameters() -> Iterator[tuple[str, Any, ParamInfo]]:
     """(dotted name, default, ParamInfo) of every core setting, in field order:
-    what ros/params.py turns into parameter specs and descriptors."""
+    what parameters/specs.py turns into parameter specs and descriptors."""
     for section in fields(SlamConfig):
         for f in fields(section.default_factory):  # type: ignore[arg-type]
             yield f"{section.name}.{f.name}", f.default, param_info(f)

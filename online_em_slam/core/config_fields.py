@@ -16,7 +16,7 @@ class ParamInfo:
     ``lo_open``/``hi_open``; ``choices`` bound a name (each entry of a tuple of
     names); ``optional``: None is allowed too.  ``validate`` checks it, and the
     ROS descriptors, config/online_em_slam.yaml and the offline params-file
-    reader are derived from it (ros/params.py).
+    reader are derived from it (parameters/specs.py).
     """
 
     doc: str

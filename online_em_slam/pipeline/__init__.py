@@ -1,7 +1,7 @@
 """The input path, ROS-free: stamp checks, loss detection, the stamp-ordered merge
 of the input streams and the feeding of an estimator, in one :class:`InputPipeline`
 shared by the ROS node (:mod:`online_em_slam.ros.node`) and the offline runner
-(:mod:`online_em_slam.runner`).
+(:mod:`online_em_slam.offline.runner`).
 """
 from .feeder import Fed, Feeder
 from .input_path import InputPath, Pushed

@@ -49,5 +49,5 @@ class Input:
 
     @property
     def refused_points(self) -> int:
-        """Observations the cloud reader left out (already counted by reason; online_em_slam.cloud)."""
+        """Observations the cloud reader left out (already counted by reason; online_em_slam.messages.cloud)."""
         return int(getattr(self.payload, "refused_points", 0)) if self.kind == OBSERVATIONS else 0

@@ -15,12 +15,12 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..cloud import (LANDMARK_FIELDS, MAX_ID, OBSERVATION_FIELDS, CloudFormatError, build_message,
-                     observations_from_message)
+from ..messages.cloud import (LANDMARK_FIELDS, MAX_ID, OBSERVATION_FIELDS, CloudFormatError, build_message,
+                              observations_from_message)
 from ..core.models.angles import wrap_angle
 from ..core.types import LandmarkMap, Observations, PoseEstimate
-from ..quaternion import (DEGENERATE_QUATERNION, QUATERNION_TOLERANCE, odometry_yaw,  # re-exported
-                          quaternion_to_yaw, yaw_to_xyzw)
+from ..messages.quaternion import (DEGENERATE_QUATERNION, QUATERNION_TOLERANCE, odometry_yaw,  # re-exported
+                                   quaternion_to_yaw, yaw_to_xyzw)
 
 __all__ = ["CloudFormatError", "stamp_to_sec", "sec_to_stamp", "yaw_to_quaternion", "quaternion_to_yaw", "odometry_yaw",
            "observations_from_cloud", "observations_to_cloud", "landmarks_to_cloud", "landmarks_to_markers",
@@ -53,7 +53,7 @@ def _finite(*values) -> bool:
 
 # ----------------------------------------------------------------- observations
 def observations_from_cloud(msg: PointCloud2, drops=None) -> Observations:
-    """The node's reader of observation clouds: :func:`online_em_slam.cloud.observations_from_message`."""
+    """The node's reader of observation clouds: :func:`online_em_slam.messages.cloud.observations_from_message`."""
     return observations_from_message(msg, drops)
 
 

@@ -43,7 +43,7 @@ from . import conversions as conv
 from .diagnostics import Diagnostics
 from .inputs import Inputs
 from .outputs import Outputs
-from .params import ParameterError, build, current_values, declare_parameters
+from ..parameters.specs import ParameterError, build, current_values, declare_parameters
 from .qos import input_qos, latched_qos
 from .services import Commands
 

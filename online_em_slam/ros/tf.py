@@ -199,7 +199,7 @@ class SensorFrames:
                 t = self._buffer.lookup_transform(settings.base_frame, frame, when).transform
             except Exception:  # noqa: BLE001 - tf2 errors, bad frame names: the parameters' pose instead
                 continue
-            from ..quaternion import quaternion_to_yaw  # noqa: PLC0415
+            from ..messages.quaternion import quaternion_to_yaw  # noqa: PLC0415
             pose = (float(t.translation.x), float(t.translation.y), quaternion_to_yaw(t.rotation))
             if all(math.isfinite(v) for v in pose):
                 return pose

@@ -64,7 +64,7 @@ class CompleteDataEM:
         if data.rows.size:
             theta_bar = table.theta[data.rows]
             stats_new = observation_statistics(data.H, data.precision, data.nu, theta_bar[None])   # (N, P, 5)
-            spread_new = _inverse_observation_spread(data.sensor, data.y, data.prior_weights)
+            spread_new = inverse_observation_spread(data.sensor, data.y, data.prior_weights)
         if self.tau.shape[1]:
             self.tau = self._smooth(data)
         if self.config.em.algorithm == "online":
@@ -205,7 +205,7 @@ class CompleteDataEM:
             self.tau = np.broadcast_to(self.stats, self.tau.shape).copy()
 
 
-def _inverse_observation_spread(sensor: np.ndarray, y: np.ndarray, prior_weights: np.ndarray) -> np.ndarray:
+def inverse_observation_spread(sensor: np.ndarray, y: np.ndarray, prior_weights: np.ndarray) -> np.ndarray:
     """Weighted covariance over particles of inverse_observation(sensor_i, y): (P, 2, 2).
 
     It is how far the landmark position implied by one observation moves with

@@ -5,7 +5,7 @@ Command line (through the KTH converter's entry point)::
     online-em-slam-convert mrclam OUTPUT --data-dir DIR_OR_TARXZ --robot K [--seconds S]
                            [--unknown-ids] [--storage mcap|sqlite3] [--overwrite] [--no-progress]
 
-Two layers, as in :mod:`online_em_slam.kth.convert` (whose message helpers are reused):
+Two layers, as in :mod:`online_em_slam.datasets.kth.convert` (whose message helpers are reused):
 :func:`mrclam_streams` (pure numpy: the arrays the bag holds) and
 :func:`write_mrclam_bag` (rosbags messages in time order, mcap or sqlite3).
 
@@ -30,7 +30,7 @@ topic                       type                            frame        content
 /odom: the velocity commands integrated from (0, 0, 0) at the first odometry sample,
 command k held over [t_k, t_k+1] along the exact arc of constant (v, w) (not Euler).
 Covariances are 0 (not estimated).  The observation clouds have the fields of
-:data:`online_em_slam.cloud.OBSERVATION_FIELDS`: x, y, z (sensor frame, z = 0), range,
+:data:`online_em_slam.messages.cloud.OBSERVATION_FIELDS`: x, y, z (sensor frame, z = 0), range,
 bearing (0 = forward, counter-clockwise positive), id = landmark subject number (6-20;
 -1 for all with ``unknown_ids``), range_std = bearing_std = 0 ("use the configured
 noise").  All barcodes read at one time are one image, one cloud; times without a kept
@@ -47,13 +47,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cloud import OBSERVATION_FIELDS
+from ...messages.cloud import OBSERVATION_FIELDS
 from ..kth.beacons import observation_columns
-from ..bagio import clear_bag_directory, message_order, write_topics
+from ...bag.bagio import clear_bag_directory, jazzy_typestore, message_order, write_topics
 from ..kth.convert import MSGTYPES as KTH_MSGTYPES
 from ..kth.convert import (FRAME_BASE, FRAME_MAP, GROUND_TRUTH_LANDMARK_FIELDS, TOPIC_CONTROL, TOPIC_GT_LANDMARKS,
-                           TOPIC_GT_POSITION, TOPIC_ODOM, TOPIC_OBSERVATIONS, TOPIC_TF, TOPIC_TF_STATIC, DeadReckoning, MessageFactory, Observations, dir_size,
-                           jazzy_typestore, to_ns)
+                           TOPIC_GT_POSITION, TOPIC_ODOM, TOPIC_OBSERVATIONS, TOPIC_TF, TOPIC_TF_STATIC, DeadReckoning,
+                           MessageFactory, Observations, dir_size, to_ns)
 from .dataset import DROP_REASONS, MrclamRun, load_mrclam
 
 #: Added to every dataset time (seconds) to make the stamps: no stamp is zero or negative.
@@ -239,7 +239,7 @@ def write_streams(streams: MrclamStreams, output, storage: str = "mcap", overwri
 
 def write_mrclam_bag(run: MrclamRun, output, storage: str = "mcap", overwrite: bool = False,
                      unknown_ids: bool = False, progress: bool = True) -> dict[str, int]:
-    """Write a loaded run (:func:`~online_em_slam.mrclam.dataset.load_mrclam`) to the bag directory
+    """Write a loaded run (:func:`~online_em_slam.datasets.mrclam.dataset.load_mrclam`) to the bag directory
     ``output``; returns messages per topic."""
     return write_streams(mrclam_streams(run, unknown_ids), output, storage, overwrite, progress)
 
@@ -262,7 +262,7 @@ def report_lines(run: MrclamRun) -> list[str]:
 
 
 def run_cli(args) -> int:
-    """``online-em-slam-convert mrclam ...`` (arguments parsed by kth.convert.main); 0 or 1 (one error line)."""
+    """``online-em-slam-convert mrclam ...`` (arguments parsed by datasets.convert.main); 0 or 1 (one error line)."""
     def fail(message: str) -> int:
         print(f"online-em-slam-convert: error: {message}", file=sys.stderr)
         return 1

@@ -14,7 +14,7 @@ A ROS 2 params YAML maps node names to ``ros__parameters``::
 :func:`load_params` merges the sections that apply to ``node_name`` (wildcard
 sections first, then the node's own, in file order) and flattens nested maps to
 the node's dotted parameter names.  :func:`config_from_params` turns the result
-into ``(SlamConfig, NodeSettings)`` through :func:`online_em_slam.ros.params.build`,
+into ``(SlamConfig, NodeSettings)`` through :func:`online_em_slam.parameters.specs.build`,
 exactly as the node does with its declared parameters (the defaults fill in the
 keys the file does not set; a bad value raises ``ParameterError``).  Defaults,
 ranges and descriptions are the node's parameter specs, whose core part is
@@ -28,7 +28,7 @@ from typing import Any, Mapping
 
 import yaml
 
-from .ros.params import NodeSettings, build
+from .specs import NodeSettings, build
 
 NODE_NAME = "online_em_slam"
 PARAMS_KEY = "ros__parameters"
@@ -116,7 +116,7 @@ def config_from_params(path_or_dict=None, overrides: Mapping[str, Any] | None = 
     """``(SlamConfig, NodeSettings)`` from a params file, a parsed params document or a
     (flat or nested) dict of parameters; ``overrides`` (flat names) are applied last.
 
-    Raises ``online_em_slam.ros.params.ParameterError`` for bad values and
+    Raises ``online_em_slam.parameters.specs.ParameterError`` for bad values and
     :class:`ParamFileError` for a malformed file.
     """
     if path_or_dict is None:

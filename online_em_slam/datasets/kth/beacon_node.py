@@ -22,7 +22,7 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import LaserScan, PointCloud2, PointField
 
-from ..cloud import OBSERVATION_FIELDS, build_message
+from ...messages.cloud import OBSERVATION_FIELDS, build_message
 from .beacons import extract_beacons, observation_columns
 
 

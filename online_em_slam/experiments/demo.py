@@ -1,13 +1,13 @@
 """End-to-end demo on the bundled Car Park data: bag -> DDS -> node -> evaluation.
 
-    python -m online_em_slam.demo [--output out/demo] [--rate 5] [--seed 0]
+    python -m online_em_slam.experiments.demo [--output out/demo] [--rate 5] [--seed 0]
 
 1. converts the bundled KTH Car Park data to a bag (``OUTPUT/car_park_bag``);
 2. starts the SLAM node as a separate process (``python -m online_em_slam.ros.node``
    with ``config/car_park.yaml``, ``use_sim_time``, the initial pose from GPS);
 3. records the node's ``~/pose``, ``~/path``, ``~/landmarks`` and ``/diagnostics``
    in this process (rclpy);
-4. replays the bag as a third process (``python -m online_em_slam.replay`` at
+4. replays the bag as a third process (``python -m online_em_slam.bag.replay`` at
    ``--rate``, with ``/clock``, after the node's subscriptions are matched);
 5. checks that every published input reached the node and none was dropped,
    evaluates the recorded outputs against the ground truth in the bag and writes
@@ -46,7 +46,7 @@ INPUT_LOSS_DROPS = ("malformed_cloud", "non_finite_odometry", "non_finite_contro
 def find_params(name: str = "car_park.yaml") -> Path:
     """config/<name> of the source tree, else of the installed package share (ament_index
     on a ROS install, else <sys.prefix>/share/online_em_slam after a plain pip install)."""
-    candidates = [Path(__file__).resolve().parent.parent / "config" / name]
+    candidates = [Path(__file__).resolve().parents[2] / "config" / name]
     try:
         from ament_index_python.packages import get_package_share_directory
         candidates.append(Path(get_package_share_directory("online_em_slam")) / "config" / name)
@@ -77,7 +77,7 @@ def _print_table(rows: list[tuple[str, str, str]]) -> None:
 
 
 def _parse_args(argv):
-    parser = argparse.ArgumentParser(prog="python -m online_em_slam.demo", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m online_em_slam.experiments.demo", description=__doc__.split("\n")[0])
     parser.add_argument("--output", default="out/demo", help="output directory (default out/demo)")
     parser.add_argument("--params", default=None, help="node params file (default config/car_park.yaml)")
     parser.add_argument("--rate", type=float, default=5.0, help="replay rate (default 5)")
@@ -111,9 +111,9 @@ class Setup:
 
 def _prepare(bag: Path, params: Path, seed: int) -> Setup:
     """Step 1: the bag from the bundled data, its inputs and the initial pose from GPS."""
-    from .kth.convert import convert
-    from .paramfile import config_from_params, load_params
-    from .runner import choose_initial_pose, read_inputs
+    from ..datasets.kth.convert import convert
+    from ..parameters.yaml_file import config_from_params, load_params
+    from ..offline.runner import choose_initial_pose, read_inputs
 
     print(f"[1/6] converting the bundled Car Park data to {bag}", flush=True)
     convert("car_park", bag, progress=False, overwrite=True)
@@ -187,7 +187,7 @@ def _subscribe(rec, recording: Recording) -> None:
 
 def _replay(executor, node_proc, bag: Path, rate: float, deadline: float, out: Path, recording: Recording):
     """Step 3: replay the bag as a third process, spinning the recorder meanwhile."""
-    replay_cmd = [sys.executable, "-m", "online_em_slam.replay", str(bag), "--rate", str(rate), "--clock",
+    replay_cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", str(rate), "--clock",
                   "--wait-subscribers", "/control:1", "/odom:1", "/landmark_observations:1", "/clock:1",
                   "--wait-timeout", "60", "--quiet"]
     print(f"[3/6] replaying at rate {rate:g} (~{125 / max(rate, 1e-9):.0f} s): {' '.join(replay_cmd[1:])}",
@@ -298,7 +298,7 @@ def _check_inputs(recording: Recording) -> bool:
 
 def _node_trajectory(recording: Recording) -> np.ndarray:
     """(n, 4) t, x, y, yaw from ~/path (every kept pose), else from the ~/pose messages."""
-    from .quaternion import quaternion_to_yaw
+    from ..messages.quaternion import quaternion_to_yaw
 
     def row(stamp, pose):
         return (stamp.sec + 1e-9 * stamp.nanosec, pose.position.x, pose.position.y,
@@ -313,8 +313,8 @@ def _node_trajectory(recording: Recording) -> np.ndarray:
 
 def _node_map(cloud, confirm_observations: int):
     """The node's last ~/landmarks cloud as a LandmarkMap (empty without one)."""
-    from .cloud import decode_message
-    from .core.types import LandmarkMap
+    from ..messages.cloud import decode_message
+    from ..core.types import LandmarkMap
 
     cols = decode_message(cloud) if cloud is not None else {k: np.zeros(0) for k in
                                                             ("x", "y", "id", "cov_xx", "cov_xy", "cov_yy", "n_obs")}
@@ -328,7 +328,7 @@ def _node_map(cloud, confirm_observations: int):
 
 def _node_metrics(recording: Recording, setup: Setup, rate: float, traj: np.ndarray, node_map) -> dict:
     """metrics.json of the node run: message accounting, landmark and trajectory errors."""
-    from .evaluation import landmark_metrics, sensor_points, trajectory_metrics
+    from ..offline.evaluation import landmark_metrics, sensor_points, trajectory_metrics
 
     inputs, diag = setup.inputs, recording.diag
     drops, losses = _node_drops(recording)
@@ -354,8 +354,8 @@ def _node_metrics(recording: Recording, setup: Setup, rate: float, traj: np.ndar
 
 def _write_node_outputs(out: Path, recording: Recording, setup: Setup, rate: float):
     """Step 5b: OUTPUT/{trajectory.csv, landmarks.csv, metrics.json, map.png} of the node run."""
-    from .plots import plot_map
-    from .report import json_dump, write_landmarks, write_trajectory
+    from ..offline.plots import plot_map
+    from ..offline.report import json_dump, write_landmarks, write_trajectory
 
     traj = _node_trajectory(recording)
     node_map = _node_map(recording.landmarks, setup.config.association.confirm_observations)
@@ -371,7 +371,7 @@ def _write_node_outputs(out: Path, recording: Recording, setup: Setup, rate: flo
 
 def _run_offline(setup: Setup, out: Path) -> dict:
     """Step 6: the offline runner (no DDS) on the same bag with the same settings."""
-    from .runner import run_one
+    from ..offline.runner import run_one
 
     print("[6/6] offline runner on the same bag (no DDS)", flush=True)
     return run_one(setup.inputs, setup.config, "online_em", setup.initial, out / "offline",

@@ -1,4 +1,4 @@
-"""The MRCLAM benchmark's tables (:mod:`online_em_slam.mrclam.benchmark`): records -> markdown.
+"""The MRCLAM benchmark's tables (:mod:`online_em_slam.datasets.mrclam.benchmark`): records -> markdown.
 
 A *cell* is one method with one noise setting on one run (dataset, robot, seconds, ids),
 summarised over its seeds: landmark RMSE after the rigid fit (shape) and in the
@@ -12,7 +12,9 @@ import math
 
 import numpy as np
 
-from .benchmark import METHODS, TWO_NOISE
+METHODS = ("online_em", "online_em_complete", "ekf_slam", "fastslam2", "marginal_slam", "batch")
+BASELINES = ("ekf_slam", "fastslam2", "marginal_slam")
+TWO_NOISE = BASELINES + ("batch",)                  # run with the params' noise and with the learned one
 
 NOISE_TAG = {"params": "P", "learned": "L"}
 LEGEND = ("Cells: landmark RMSE after the best rigid 2-D fit (shape, m), mean ± standard error over seeds · "

@@ -10,7 +10,7 @@ the last ``/NAME/landmarks`` cloud.  INBAG (default: OUTBAG itself) gives the
 ground truth (``/ground_truth/position``, ``/ground_truth/landmarks``), the
 odometry and the sensor mounting (``/tf_static`` base_link -> laser, when
 ``--params`` does not set ``sensor.offset_*``).  The metric functions are those of
-``run`` (:mod:`online_em_slam.evaluation`); landmarks count once confirmed
+``run`` (:mod:`online_em_slam.offline.evaluation`); landmarks count once confirmed
 (``n_obs >= association.confirm_observations``).
 
 Frames: the node's map frame is its start pose, the ground truth is in the GPS
@@ -22,7 +22,7 @@ start pose fitted to the first GPS metres (as ``run --initial-pose gps``) and P
 the node's initial pose; no alignment otherwise (``--align`` adds the aligned error).
 
 Outputs in DIR (default: OUTBAG_eval): ``metrics.json``, ``trajectory.csv``,
-``landmarks.csv``, TUM files for evo (:mod:`online_em_slam.tum`) and ``map.png``.
+``landmarks.csv``, TUM files for evo (:mod:`online_em_slam.offline.tum`) and ``map.png``.
 """
 from __future__ import annotations
 
@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .bagio import absolute_topic
+from ..bag.bagio import absolute_topic
 from .evaluation import (DEFAULT_MATCH_GATE, initial_pose_from_gps, landmark_metrics, sensor_points,
                          trajectory_metrics)
-from .quaternion import quaternion_to_yaw
+from ..messages.quaternion import quaternion_to_yaw
 
 GT_POSITION_TOPIC = "/ground_truth/position"
 GT_LANDMARKS_TOPIC = "/ground_truth/landmarks"
@@ -53,8 +53,8 @@ class Recorded:
 
 def read_recorded(bag, pose_topic: str, landmarks_topic: str) -> Recorded:
     """The node's pose track and final map from a recorded bag."""
-    from .bagio import read_bag
-    from .cloud import decode_message
+    from ..bag.bagio import read_bag
+    from ..messages.cloud import decode_message
 
     rows, last_cloud, frame = [], None, ""
     for topic, stamp, msg in read_bag(bag, [pose_topic, landmarks_topic]):
@@ -86,8 +86,8 @@ class Truth:
 
 
 def read_truth(bag, settings) -> Truth:
-    from .bagio import read_bag
-    from .cloud import decode_message
+    from ..bag.bagio import read_bag
+    from ..messages.cloud import decode_message
 
     odom_topic, control_topic = absolute_topic(settings.odom_topic), absolute_topic(settings.control_topic)
     gps_t, gps, odom_t, odom, landmarks, offset, start = [], [], [], [], None, None, None
@@ -235,7 +235,7 @@ def write_outputs(output: Path, recorded: Recorded, truth: Truth, to_truth, sens
 
 
 def cmd_evaluate(args) -> int:
-    from .paramfile import config_from_params, load_params
+    from ..parameters.yaml_file import config_from_params, load_params
 
     values = load_params(args.params) if args.params else {}
     config, settings = config_from_params(values)

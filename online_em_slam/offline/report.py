@@ -1,6 +1,6 @@
 """Evaluation and report files of an offline run: metrics.json content, CSV outputs, summary and comparison tables.
 
-Plots are in :mod:`online_em_slam.plots`; the run itself in :mod:`online_em_slam.runner`.
+Plots are in :mod:`online_em_slam.offline.plots`; the run itself in :mod:`online_em_slam.offline.runner`.
 """
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.config import SlamConfig
+from ..core.config import SlamConfig
 from .evaluation import DEFAULT_MATCH_GATE, landmark_metrics, sensor_points, timing_metrics, trajectory_metrics
 
 TRAJECTORY_HEADER = ("t", "x", "y", "yaw")
@@ -86,14 +86,14 @@ def write_noise_params(path, learned_parameters: dict, file_values: dict, learne
               "# (learned ones once warmed up); pass it back with --params or to the node.\n"
               f"# learned: {json.dumps(shown)}\n")
     body = yaml.safe_dump({"/**": {"ros__parameters": values}}, sort_keys=False, default_flow_style=None, width=100)
-    from .core.mapping.mapfile import write_bytes_atomic  # noqa: PLC0415
+    from ..core.mapping.mapfile import write_bytes_atomic  # noqa: PLC0415
     write_bytes_atomic(path, (header + body).encode())
 
 
 def json_dump(path, data) -> None:
     # Atomic and fsynced, through an unpredictable temporary name: a predictable
     # "metrics.json.tmp" could be a planted symlink that sends the write elsewhere.
-    from .core.mapping.mapfile import write_bytes_atomic  # noqa: PLC0415
+    from ..core.mapping.mapfile import write_bytes_atomic  # noqa: PLC0415
     write_bytes_atomic(path, (json.dumps(data, indent=2, sort_keys=False) + "\n").encode())
 
 

@@ -5,10 +5,10 @@ through the node's own input pipeline (:mod:`online_em_slam.pipeline`: stamp che
 the (stamp, tie rule) ordered merge of the streams within the node's ``input_delay``
 window, the feeder), so the estimator sees the identical sequence of inputs as
 the node and memory does not grow with the bag.  Observation clouds are read by the node's reader
-(:func:`online_em_slam.cloud.observations_from_message`) and odometry
-orientations by the node's quaternion check (:mod:`online_em_slam.quaternion`).
+(:func:`online_em_slam.messages.cloud.observations_from_message`) and odometry
+orientations by the node's quaternion check (:mod:`online_em_slam.messages.quaternion`).
 What the input path or the readers refuse is counted by reason
-(``runner_skipped`` in metrics.json).  The command line is :mod:`online_em_slam.cli`.
+(``runner_skipped`` in metrics.json).  The command line is :mod:`online_em_slam.offline.cli`.
 """
 from __future__ import annotations
 
@@ -22,13 +22,13 @@ from pathlib import Path
 import numpy as np
 
 from . import plots, report
-from .bagio import absolute_topic
-from .cloud import CloudFormatError, decode_message, observations_from_message
-from .core.config import SlamConfig
+from ..bag.bagio import absolute_topic
+from ..messages.cloud import CloudFormatError, decode_message, observations_from_message
+from ..core.config import SlamConfig
 from .evaluation import DEFAULT_MATCH_GATE, InitialPose, initial_pose_from_gps
-from .pipeline import CONTROL, OBSERVATIONS, ODOMETRY, InputPipeline
-from .progress import Progress
-from .quaternion import odometry_yaw
+from ..pipeline import CONTROL, OBSERVATIONS, ODOMETRY, InputPipeline
+from ..bag.progress import Progress
+from ..messages.quaternion import odometry_yaw
 from .tum import write_run_tum
 
 METHODS = ("online_em", "ekf_slam", "fastslam2", "marginal_slam")
@@ -89,7 +89,7 @@ class BagEvents:
         return self.stream(Counter())
 
     def stream(self, refused: Counter):
-        from .bagio import read_bag_timed
+        from ..bag.bagio import read_bag_timed
 
         reader = BagReader(self.settings, keep_poses=False)
         reader.refused = refused
@@ -171,7 +171,7 @@ class BagReader:
 def read_inputs(bag, settings) -> BagInputs:
     """First pass over ``bag`` (settings: NodeSettings): odometry poses, GPS, surveyed landmarks,
     message counts and the first input's stamp; the inputs themselves stream from ``events``."""
-    from .bagio import read_bag_timed
+    from ..bag.bagio import read_bag_timed
 
     reader = BagReader(settings)
     start = None
@@ -207,7 +207,7 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 
 def choose_initial_pose(mode: str, inputs: BagInputs, config: SlamConfig, settings, file_values: dict
                         ) -> InitialPose:
-    """``--initial-pose`` (see :mod:`online_em_slam.cli`): auto, params, ground_truth, gps or X,Y,YAW."""
+    """``--initial-pose`` (see :mod:`online_em_slam.offline.cli`): auto, params, ground_truth, gps or X,Y,YAW."""
     start = inputs.start if inputs.start is not None else 0.0
     sets_pose = any(k.startswith("initial_pose.") for k in file_values)
     if mode == "auto":
@@ -242,16 +242,16 @@ def ground_truth_start(inputs: BagInputs, start: float) -> InitialPose:
 
 def make_estimator(method: str, config: SlamConfig, initial_pose):
     if method == "online_em":
-        from .core import OnlineEMSlam
+        from ..core import OnlineEMSlam
         return OnlineEMSlam(config, initial_pose=initial_pose)
     if method == "ekf_slam":
-        from .baselines import EkfSlam
+        from ..baselines import EkfSlam
         return EkfSlam(config, initial_pose=initial_pose)
     if method == "fastslam2":
-        from .baselines import FastSlam2
+        from ..baselines import FastSlam2
         return FastSlam2(config, initial_pose=initial_pose)
     if method == "marginal_slam":
-        from .baselines import MarginalSlam
+        from ..baselines import MarginalSlam
         return MarginalSlam(config, initial_pose=initial_pose)
     raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
 

@@ -190,8 +190,8 @@ def candidate_data_dirs() -> list[Path]:
     env = os.environ.get(DATA_ENV_VAR)
     if env:
         out.append(Path(env).expanduser())
-    # Source tree / develop install: <repo>/online_em_slam/kth/datasets.py -> <repo>/data/kth
-    out.append(Path(__file__).resolve().parents[2] / "data" / "kth")
+    # Source tree / develop install: <repo>/online_em_slam/datasets/kth/datasets.py -> <repo>/data/kth
+    out.append(Path(__file__).resolve().parents[3] / "data" / "kth")
     try:  # installed package: share/online_em_slam/data/kth
         from ament_index_python.packages import get_package_share_directory
         out.append(Path(get_package_share_directory(PACKAGE_NAME)) / "data" / "kth")

@@ -31,11 +31,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .core.models.angles import wrap_angle
-from .core.config import (AssociationConfig, FilterConfig, MotionConfig, ObservationNoiseConfig, SensorConfig,
-                          SlamConfig)
-from .core.models.observation import noise_covariance, predict_observation
-from .core.types import Observations
+from ..core.models.angles import wrap_angle
+from ..core.config import (AssociationConfig, FilterConfig, MotionConfig, ObservationNoiseConfig, SensorConfig,
+                           SlamConfig)
+from ..core.models.observation import noise_covariance, predict_observation
+from ..core.types import Observations
 
 # Closed route (m), a rounded irregular loop of about 330 m: at 3 m/s and
 # 1500 steps of 0.2 s (900 m) the vehicle drives it about 2.7 times.

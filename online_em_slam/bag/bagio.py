@@ -16,6 +16,12 @@ import numpy as np
 from .progress import Progress
 
 
+
+def jazzy_typestore():
+    """The rosbags type store of ROS 2 Jazzy's messages (bags written and read here)."""
+    from rosbags.typesys import Stores, get_typestore
+    return get_typestore(Stores.ROS2_JAZZY)
+
 def _typestore():
     from rosbags.typesys import Stores, get_typestore
     return get_typestore(Stores.ROS2_JAZZY)

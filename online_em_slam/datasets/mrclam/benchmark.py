@@ -24,7 +24,7 @@ the best rigid 2-D fit; frame = the rest; trajectory RMSE against /ground_truth/
 Work items run in ``--jobs`` spawned worker processes with one BLAS thread each; an
 existing metrics.json is reused (an interrupted sweep resumes).  Plots only for the
 first seed of online_em and ekf_slam.  Writes ``OUTPUT/results.json`` (every work item)
-and ``OUTPUT/results.md`` (tables: :mod:`online_em_slam.mrclam.table`), and prints the markdown.
+and ``OUTPUT/results.md`` (tables: :mod:`online_em_slam.datasets.mrclam.table`), and prints the markdown.
 """
 from __future__ import annotations
 
@@ -37,17 +37,16 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from .table import METHODS, TWO_NOISE, results_markdown
+
 MATCH_GATE = 1.0
-METHODS = ("online_em", "online_em_complete", "ekf_slam", "fastslam2", "marginal_slam", "batch")
-BASELINES = ("ekf_slam", "fastslam2", "marginal_slam")
-TWO_NOISE = BASELINES + ("batch",)                  # run with the params' noise and with the learned one
 SINGLE_RUN = ("ekf_slam", "batch")                   # deterministic: the first seed only
 RUNNER_METHOD = {"online_em_complete": "online_em"}
 OVERRIDES = {"online_em_complete": (("em.m_step", "complete"),)}
 PLOTTED = ("online_em", "ekf_slam")
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 #: The package's config/mrclam.yaml (source checkout); else looked up from the working directory.
-_CHECKOUT_PARAMS = Path(__file__).resolve().parents[2] / "config" / "mrclam.yaml"
+_CHECKOUT_PARAMS = Path(__file__).resolve().parents[3] / "config" / "mrclam.yaml"
 DEFAULT_PARAMS = str(_CHECKOUT_PARAMS) if _CHECKOUT_PARAMS.exists() else "config/mrclam.yaml"
 
 
@@ -150,7 +149,7 @@ def execute(item: Item) -> dict:
         metrics = solve_batch(item) if item.kind == "batch" else run_method(item)
         metrics["benchmark"] = {"item_wall_s": time.perf_counter() - started, "params": list(item.params),
                                 "overrides": dict(item.overrides), "noise": item.noise}
-        from ..report import json_dump
+        from ...offline.report import json_dump
         json_dump(path, metrics)
         return record(item, "ok", metrics)
     except ImportError as error:
@@ -178,8 +177,8 @@ def convert_bag(item: Item) -> str:
 
 def prepared(item: Item) -> tuple:
     """(config, settings, file values, inputs, initial pose) as ``online-em-slam run`` prepares them."""
-    from ..paramfile import config_from_params, load_params
-    from ..runner import choose_initial_pose, read_inputs
+    from ...parameters.yaml_file import config_from_params, load_params
+    from ...offline.runner import choose_initial_pose, read_inputs
     values: dict = {}
     for path in item.params:
         values.update(load_params(path))
@@ -195,7 +194,7 @@ def prepared(item: Item) -> tuple:
 
 
 def run_method(item: Item) -> dict:
-    from ..runner import run_one
+    from ...offline.runner import run_one
     config, _, values, inputs, initial = prepared(item)
     extra = {"params": " + ".join(item.params), "benchmark_method": item.method}
     return run_one(inputs, config, RUNNER_METHOD.get(item.method, item.method), initial, Path(item.out),
@@ -206,9 +205,9 @@ def solve_batch(item: Item) -> dict:
     """GTSAM batch ML (known ids) on the bag, scored as the runner scores a run."""
     import numpy as np
 
-    from ..baselines.gtsam_inputs import batch_on_bag
-    from ..evaluation import landmark_metrics, sensor_points, trajectory_metrics
-    from ..report import write_trajectory
+    from ...offline.batch import batch_on_bag
+    from ...offline.evaluation import landmark_metrics, sensor_points, trajectory_metrics
+    from ...offline.report import write_trajectory
     config, _, _, inputs, initial = prepared(item)
     started = time.perf_counter()
     result = batch_on_bag(item.bag, list(item.params), initial.pose)
@@ -332,7 +331,6 @@ def unique(values: list) -> list:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .table import results_markdown
     args = build_parser().parse_args(argv)
     for name in ("datasets", "robots", "seconds", "seeds", "ids", "methods"):
         setattr(args, name, unique(getattr(args, name)))
@@ -357,7 +355,7 @@ def main(argv: list[str] | None = None) -> int:
     meta.update(match_gate_m=MATCH_GATE, wall_time_s=time.perf_counter() - started, cpu_count=os.cpu_count(),
                 date=time.strftime("%Y-%m-%d %H:%M"))
     text = results_markdown(records, meta)
-    from ..report import json_dump
+    from ...offline.report import json_dump
     json_dump(Path(args.output) / "results.json", {"meta": meta, "runs": records})
     (Path(args.output) / "results.md").write_text(text)
     print(text)

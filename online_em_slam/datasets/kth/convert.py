@@ -5,7 +5,7 @@ Command line::
     online-em-slam-convert {car_park,victoria_park} OUTPUT [--data-dir D]
                            [--storage mcap|sqlite3] [--overwrite] [--no-progress]
                            [--no-map-to-gps]
-    online-em-slam-convert mrclam OUTPUT --data-dir D --robot K ...   (online_em_slam.mrclam.convert)
+    online-em-slam-convert mrclam OUTPUT --data-dir D --robot K ...   (online_em_slam.datasets.mrclam.convert)
 
 Two layers:
 
@@ -53,25 +53,22 @@ and ``map -> gps`` on /tf_static (latched).  The /ground_truth/* frame ``gps`` i
 GPS east/north frame.  ``map -> gps`` places it for a node started at
 ``initial_pose`` (0, 0, 0), the parameter files' default (map = the vehicle's
 start frame): the inverse of the start pose fitted to the first GPS metres
-(:func:`online_em_slam.evaluation.initial_pose_from_gps`, as ``online-em-slam
+(:func:`online_em_slam.offline.evaluation.initial_pose_from_gps`, as ``online-em-slam
 run`` does), so the ground truth overlays the map in RViz.  A node started at
 the GPS-derived pose has map = gps: convert with ``--no-map-to-gps`` for it.
 """
 from __future__ import annotations
 
-import argparse
-import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..bagio import clear_bag_directory, message_order, write_topics
-from ..cloud import OBSERVATION_FIELDS, build_message
-from ..core.models import motion
-from ..core.config import MotionConfig
-from ..quaternion import yaw_to_xyzw
+from ...bag.bagio import clear_bag_directory, jazzy_typestore, message_order, write_topics
+from ...messages.cloud import OBSERVATION_FIELDS, build_message
+from ...core.models import motion
+from ...core.config import MotionConfig
+from ...messages.quaternion import yaw_to_xyzw
 from .beacons import extract_beacons, observation_columns
 from .datasets import (VEHICLE, CarPark, GpsTrack, LaserScans, OdometryStream, Vehicle,
                        VictoriaPark, load_car_park, load_victoria_park)
@@ -257,7 +254,7 @@ def gps_frame_in_map(streams: Streams) -> tuple[float, float, float] | None:
     offline runner's ``--initial-pose gps`` does, and map -> gps is its inverse.
     None when the GPS track cannot give a heading.
     """
-    from ..evaluation import initial_pose_from_gps
+    from ...offline.evaluation import initial_pose_from_gps
 
     if len(streams.gps) < 2 or len(streams.control.times) == 0:
         return None
@@ -293,11 +290,6 @@ def message_schedule(streams: Streams) -> tuple[np.ndarray, list[str], np.ndarra
 
 
 # --------------------------------------------------------------------------- rosbags messages
-
-def jazzy_typestore():
-    from rosbags.typesys import Stores, get_typestore
-    return get_typestore(Stores.ROS2_JAZZY)
-
 
 class MessageFactory:
     """Builds rosbags message objects for the streams."""
@@ -432,51 +424,3 @@ def convert(name: str, output, data_dir=None, storage: str = "mcap", progress: b
 
 def dir_size(path: Path) -> int:
     return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="online-em-slam-convert",
-        description="Convert a KTH SLAM dataset (ACFR ute) or one robot of UTIAS MRCLAM to a ROS 2 bag.")
-    parser.add_argument("dataset", choices=sorted(STREAM_BUILDERS) + ["mrclam"])
-    parser.add_argument("output", help="bag directory to create")
-    parser.add_argument("--data-dir", default=None,
-                        help="directory holding car_park/ and victoria_park/ (default: packaged data, "
-                             "or $ONLINE_EM_SLAM_DATA); mrclam: the MRCLAM_DatasetN directory or its .tar.xz")
-    parser.add_argument("--robot", type=int, default=None, help="mrclam only (required): robot 1-5")
-    parser.add_argument("--seconds", type=float, default=None,
-                        help="mrclam only: keep the first S seconds of every stream")
-    parser.add_argument("--unknown-ids", action="store_true",
-                        help="mrclam only: observation ids -1 (unknown) instead of the landmark numbers")
-    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing bag directory")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    parser.add_argument("--no-map-to-gps", action="store_true",
-                        help="leave out the static map -> gps transform (for a node started at the "
-                             "GPS-derived initial pose, whose map frame is the gps frame)")
-    args = parser.parse_args(argv)
-    if args.dataset == "mrclam":
-        from ..mrclam.convert import run_cli
-        return run_cli(args)
-    if args.robot is not None or args.seconds is not None or args.unknown_ids:
-        print("online-em-slam-convert: error: --robot, --seconds and --unknown-ids are for mrclam only",
-              file=sys.stderr)
-        return 1
-    t0 = time.monotonic()
-    try:
-        counts = convert(args.dataset, args.output, args.data_dir, args.storage,
-                         progress=not args.no_progress, overwrite=args.overwrite,
-                         map_to_gps=not args.no_map_to_gps)
-    except (FileNotFoundError, FileExistsError, ValueError) as exc:
-        print(f"online-em-slam-convert: error: {exc}", file=sys.stderr)
-        return 1
-    elapsed = time.monotonic() - t0
-    for topic, n in counts.items():
-        print(f"{topic:28s} {n:8d}")
-    print(f"wrote {sum(counts.values())} messages to {args.output} "
-          f"({dir_size(Path(args.output)) / 1e6:.1f} MB, {args.storage}) in {elapsed:.1f} s")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

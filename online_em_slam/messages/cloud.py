@@ -17,8 +17,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from .core.models.angles import wrap_angle
-from .core.types import Observations
+from ..core.models.angles import wrap_angle
+from ..core.types import Observations
 
 # sensor_msgs/PointField datatype constants.
 INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = range(1, 9)

@@ -14,7 +14,7 @@ reliable subscriber; topics recorded as TRANSIENT_LOCAL (/tf_static, latched
 ground truth) are offered TRANSIENT_LOCAL.  ``--clock`` publishes
 rosgraph_msgs/Clock on /clock with the log time before each message (``--clock
 HZ``: at HZ).  The options that follow ``ros2 bag play`` (loop, offset, duration,
-remap, exclude, start paused) are described in :mod:`online_em_slam.replay_options`.
+remap, exclude, start paused) are described in :mod:`online_em_slam.bag.replay_options`.
 
 At the end the number of messages published per topic is printed, followed by
 one JSON line ``{"published": {...}, "skipped_topics": {...}, ...}`` on stdout.

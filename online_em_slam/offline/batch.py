@@ -47,7 +47,7 @@ from ..core.models.motion import propagate, step_jitter
 from ..core.models.observation import (MIN_DISTANCE, information_noise, inverse_observation, noise_covariance,
                                        sensor_poses)
 from ..pipeline.inputs import CONTROL, OBSERVATIONS, ODOMETRY
-from .gtsam_batch import compose, levenberg_marquardt, symbols, tangent_covariance
+from ..baselines.gtsam_batch import compose, levenberg_marquardt, symbols, tangent_covariance
 
 
 @dataclass
@@ -381,7 +381,7 @@ def _add_step(gtsam, graph, problem: InputsProblem, config: SlamConfig, k: int, 
 
 def released_events(inputs):
     """A runner BagInputs' events through the input path as the runner feeds them
-    (online_em_slam.runner.feed): (kind, stamp, payload), stamp-ordered; the path's
+    (online_em_slam.offline.runner.feed): (kind, stamp, payload), stamp-ordered; the path's
     refusals are added to ``inputs.refused``."""
     from ..pipeline import InputPath, merged_streams
 
@@ -403,8 +403,8 @@ def batch_on_bag(bag, params_files, initial_pose=None, max_iterations: int = 100
     when ``initial_pose`` is None, the runner's initial pose (``--initial-pose auto``).
     ``init`` defaults to ``incremental``: from a real run's dead reckoning LM can stop in
     a local minimum far from the optimum."""
-    from ..paramfile import config_from_params, load_params
-    from ..runner import choose_initial_pose, read_inputs
+    from ..parameters.yaml_file import config_from_params, load_params
+    from .runner import choose_initial_pose, read_inputs
 
     single = isinstance(params_files, str) or hasattr(params_files, "__fspath__")
     files = [params_files] if single else list(params_files)

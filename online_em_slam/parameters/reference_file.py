@@ -1,6 +1,6 @@
-"""config/online_em_slam.yaml, generated from the parameter specs (ros/params.py): one source.
+"""config/online_em_slam.yaml, generated from the parameter specs (parameters/specs.py): one source.
 
-    python -m online_em_slam.ros.params_file > config/online_em_slam.yaml
+    python -m online_em_slam.parameters.reference_file > config/online_em_slam.yaml
 
 Every key, default, description, range and read-only flag comes from the specs
 that also build the ROS parameter descriptors and the offline params-file
@@ -14,7 +14,7 @@ from __future__ import annotations
 import sys
 import textwrap
 
-from .params import NODE_SPECS, ParamSpec, core_specs, range_text
+from .specs import NODE_SPECS, ParamSpec, core_specs, range_text
 
 HEADER = """\
 # Parameters of online_em_slam_node (ros2 run online_em_slam online_em_slam_node
@@ -24,7 +24,7 @@ HEADER = """\
 # Core settings (motion.*, sensor.*, noise.*, filter.*, em.*, association.*) changed at run
 # time take effect at the next reset (~/reset); out-of-range values are refused.
 # Generated from the core's field metadata (online_em_slam/core/config.py) and the node specs
-# (online_em_slam/ros/params.py): python -m online_em_slam.ros.params_file
+# (online_em_slam/parameters/specs.py): python -m online_em_slam.parameters.reference_file
 /**:
   ros__parameters:
 """

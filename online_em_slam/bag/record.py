@@ -45,7 +45,7 @@ class Recorder:
     """Subscribes to topics as they appear and writes their raw messages to a rosbags writer."""
 
     def __init__(self, node, writer, topics: list[str] | None, log=print) -> None:
-        from .kth.convert import jazzy_typestore
+        from .bagio import jazzy_typestore
 
         self.node, self.writer, self.log = node, writer, log
         self.wanted = None if topics is None else list(topics)     # None: every topic

@@ -6,7 +6,7 @@
     online-em-slam compare BAG --params FILE --output DIR [--methods ...] [--seed S] ...
 
 ``run`` reads the bag (rosbags, no rclpy) and feeds the estimator through the
-node's own input path (:mod:`online_em_slam.runner`, with
+node's own input path (:mod:`online_em_slam.offline.runner`, with
 :mod:`online_em_slam.pipeline`: stamp checks, the (stamp, tie rule) ordered merge of
 the streams, the feeder), so the estimator sees the identical sequence of
 inputs as the node: the control topic ->
@@ -14,7 +14,7 @@ inputs as the node: the control topic ->
 ``add_odometry`` (``motion_source: odom``), the observation topic (PointCloud2
 with fields range, bearing and optional id, range_std, bearing_std) ->
 ``add_observations``.  Topic names and every setting come from the node's
-parameter file (``--params``), read with :mod:`online_em_slam.paramfile`.
+parameter file (``--params``), read with :mod:`online_em_slam.parameters.yaml_file`.
 Empty observation clouds and observations before the first motion input are not
 fed (counted under ``runner_skipped`` in metrics.json, with every input the path
 or the node's cloud and quaternion checks refused, by reason).
@@ -25,7 +25,7 @@ of the params file when it sets any; otherwise, when the bag has
 first input; otherwise, when the bag has ``/ground_truth/position`` (a GPS measuring the sensor point, in the map frame),
 from GPS: the sensor point at the first fix, the heading fitted to the first
 10 m of GPS track (using /odom for the shape of the track when the bag has it;
-see :func:`online_em_slam.evaluation.initial_pose_from_gps`); else (0, 0, 0).
+see :func:`online_em_slam.offline.evaluation.initial_pose_from_gps`); else (0, 0, 0).
 No trajectory alignment is applied afterwards (``--align`` additionally reports
 the error after a rigid alignment).
 
@@ -35,7 +35,7 @@ whole map, as the node publishes it), ``metrics.json`` (timing, real-time factor
 map size, drops; landmark metrics against ``/ground_truth/landmarks`` and
 trajectory metrics of the sensor point against ``/ground_truth/position`` when
 the bag has them), ``noise.yaml`` (online EM: the parameter file with the noise
-it learned; :func:`online_em_slam.report.write_noise_params`) and ``map.png``.  Landmark metrics count the landmarks seen at
+it learned; :func:`online_em_slam.offline.report.write_noise_params`) and ``map.png``.  Landmark metrics count the landmarks seen at
 least ``association.confirm_observations`` times (the confirmed ones).
 
 ``compare`` runs several methods on the same bag (DIR/<method>/ as ``run``) and
@@ -47,9 +47,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from .core.config import SlamConfig
+from ..core.config import SlamConfig
 from .evaluation import DEFAULT_MATCH_GATE
-from .paramfile import config_from_params, load_params
+from ..parameters.yaml_file import config_from_params, load_params
 from .report import comparison_markdown, comparison_row, json_dump, summary_line
 from .runner import METHODS, choose_initial_pose, read_inputs, run_one
 

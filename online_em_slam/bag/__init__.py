@@ -1,0 +1,1 @@
+"""Bags: reading and writing (rosbags), replay over DDS, recording, a topic tool."""

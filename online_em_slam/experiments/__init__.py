@@ -1,0 +1,1 @@
+"""The simulator, the seed-scenario benchmark and the demo."""
