@@ -333,3 +333,32 @@ def test_a_relative_map_file_without_a_directory_is_resolved_once(tmp_path, monk
         str(tmp_path / "maps" / "sub" / "m.npz")
     with pytest.raises(mapfile.MapFileError, match="'..'"):
         mapfile.confined_path(*mapfile.map_file_path("../m.npz", str(tmp_path / "maps")))
+
+
+@pytest.mark.parametrize("saved_by, loaded_by", [("observed", "complete"), ("complete", "observed"),
+                                                 ("observed", "observed"), ("complete", "complete")])
+def test_a_map_loads_into_either_m_step_and_stays_where_it_was(tmp_path, saved_by, loaded_by):
+    """The file holds each landmark's estimate and information whatever M-step wrote it: a map
+    saved by one M-step and loaded by the other keeps its landmarks through the next steps
+    (the complete-data M-step solves theta = A^-1 b from the file's statistics)."""
+    from dataclasses import replace
+
+    scenario = simulate(ScenarioConfig(seed=0, n_steps=80))
+    config = slam_config_for(scenario)
+    config.filter.num_particles = 20
+    saver = OnlineEMSlam(replace(config, em=replace(config.em, m_step=saved_by)),
+                         initial_pose=scenario.initial_pose, stamp=0.0)
+    for step in scenario.steps[:60]:
+        feed(saver, step)
+    path = tmp_path / "map.npz"
+    saver.save_map(path)
+    before = saver.landmarks()
+    loader = OnlineEMSlam(replace(config, em=replace(config.em, m_step=loaded_by)),
+                          initial_pose=scenario.initial_pose, stamp=0.0)
+    loader.load_map(path)
+    np.testing.assert_allclose(loader.landmarks().positions, before.positions)
+    for step in scenario.steps[60:]:
+        feed(loader, step)
+    after = loader.landmarks()
+    moved = np.linalg.norm(after.positions[:len(before.positions)] - before.positions, axis=1)
+    assert moved.max() < 1.0, moved

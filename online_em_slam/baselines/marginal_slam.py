@@ -174,12 +174,13 @@ class RecursiveMLMapUpdate:
         return self.covariances()
 
     # ------------------------------------------------------------ persistence
-    def saved_arrays(self) -> dict[str, np.ndarray]:
-        """Ibar packed as complete-data statistics (A, A theta is not kept: b = 0)."""
+    def saved_arrays(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        """Ibar packed as complete-data statistics (A, A theta)."""
         m = self.count.shape[0]
         stats = np.zeros((m, STAT_DIM))
         stats[:, 0], stats[:, 1], stats[:, 2] = (self.information[:, 0, 0], self.information[:, 0, 1],
                                                  self.information[:, 1, 1])
+        stats[:, 3:] = np.einsum("mij,mj->mi", self.information, theta)
         return {"count": self.count, "inv_n": self.inv_n, "stats": stats, "spread": self.spread,
                 "avg_stats": np.zeros((m, STAT_DIM)), "avg_count": np.zeros(m, dtype=np.int64)}
 

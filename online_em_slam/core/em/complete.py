@@ -190,7 +190,7 @@ class CompleteDataEM:
         return self.covariances()
 
     # ------------------------------------------------------------ persistence
-    def saved_arrays(self) -> dict[str, np.ndarray]:
+    def saved_arrays(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         return {"count": self.count, "inv_n": self.inv_n, "stats": self.stats, "spread": self.spread,
                 "avg_stats": self.avg_stats, "avg_count": self.avg_count}
 

@@ -125,7 +125,7 @@ class ObservedInformationEM:
         return joint if joint is not None else self.covariances()
 
     # ------------------------------------------------------------ persistence
-    def saved_arrays(self) -> dict[str, np.ndarray]:
+    def saved_arrays(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """The map's marginal information packed as complete-data statistics (A, A theta)."""
         m = self.information.shape[0]
         cov = self.map_covariances()
@@ -133,6 +133,7 @@ class ObservedInformationEM:
         info = np.where((det > 1e-300)[:, None, None], info, self.information)
         stats = np.zeros((m, STAT_DIM))
         stats[:, 0], stats[:, 1], stats[:, 2] = info[:, 0, 0], info[:, 0, 1], info[:, 1, 1]
+        stats[:, 3:] = np.einsum("mij,mj->mi", info, theta)
         return {"count": np.ones(m, dtype=np.int64), "inv_n": np.ones(m), "stats": stats,
                 "spread": np.zeros((m, 2, 2)), "avg_stats": np.zeros((m, STAT_DIM)),
                 "avg_count": np.zeros(m, dtype=np.int64)}

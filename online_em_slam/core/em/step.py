@@ -79,9 +79,11 @@ class MStep(Protocol):
     def map_covariances(self) -> np.ndarray:
         """Landmark covariances (M, 2, 2) reported with the map."""
 
-    def saved_arrays(self) -> dict[str, np.ndarray]:
+    def saved_arrays(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """Per-landmark state for the map file (core/mapping/mapfile.py keys: count, inv_n,
-        stats, spread, avg_stats, avg_count)."""
+        stats, spread, avg_stats, avg_count) at the estimates ``theta`` (M, 2).  ``stats``
+        are complete-data statistics (A, b) with A^-1 b = theta whatever the M-step, so
+        that either M-step can load the file."""
 
     def restore(self, arrays: dict[str, np.ndarray], theta: np.ndarray) -> None:
         """Continue from a loaded map file's arrays (landmarks appended to empty state)."""

@@ -28,7 +28,8 @@ import numpy as np
 
 FORMAT_VERSION = 1
 # Width of a landmark's stored statistics: the complete-data statistics (A00, A01, A11, b0, b1)
-# of em/statistics.py, in which every M-step's ``saved_arrays`` writes its landmarks' information.
+# of em/statistics.py, in which every M-step's ``saved_arrays`` writes its landmarks' information
+# and estimates (A, A theta): either M-step loads a file the other wrote.
 STATS_WIDTH = 5
 # Refuse files claiming more rows than this before reading their data: a header can
 # declare any shape, and the data would be allocated first and checked later.

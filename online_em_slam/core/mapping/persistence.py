@@ -19,7 +19,7 @@ from .landmarks import LandmarkTable
 def map_arrays(table: LandmarkTable, m_step) -> dict[str, np.ndarray]:
     """The landmark table and the M-step's per-landmark state, as copies."""
     arrays = {"theta": table.theta, "ids": table.ids, "n_obs": table.n_obs, "confirmed": table.confirmed}
-    arrays.update(m_step.saved_arrays())
+    arrays.update(m_step.saved_arrays(table.theta))
     return {name: np.array(value) for name, value in arrays.items()}
 
 
