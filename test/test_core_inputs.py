@@ -1,4 +1,4 @@
-"""The shared input contract (core/filter/inputs.py) and the core's defences against hostile inputs
+"""The shared input contract (core/filter/input_contract.py) and the core's defences against hostile inputs
 (issue 12, defects 5 and 7): each test fails on the code before them."""
 import tracemalloc
 

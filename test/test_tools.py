@@ -159,7 +159,7 @@ def _write_truth_bag(path, track, landmarks):
     events = [(track[0, 0], "/tf_static", "tf2_msgs/msg/TFMessage", T["tf2_msgs/msg/TFMessage"](transforms=[laser])),
               (track[0, 0], "/ground_truth/landmarks", "sensor_msgs/msg/PointCloud2", cloud)]
     # Odometry starts at (0, 0, 0): the truth track seen from its first pose.
-    from online_em_slam.offline.evaluate_bag import compose, inverse
+    from online_em_slam.offline.evaluate_recording import compose, inverse
     odom = compose(inverse(track[0, 1:4]), track[:, 1:4])
     gps = sensor_points(track[:, 1:4], OFFSET)
     for k, (t, x, y, yaw) in enumerate(np.column_stack([track[:, 0], odom])):
@@ -215,7 +215,7 @@ def test_record_then_evaluate_a_node_run(ros, tmp_path):
     from sensor_msgs.msg import PointCloud2
 
     from online_em_slam.offline import cli
-    from online_em_slam.offline.evaluate_bag import compose, inverse
+    from online_em_slam.offline.evaluate_recording import compose, inverse
     from online_em_slam.offline.tum import read_tum
 
     _, node, env = ros

@@ -18,7 +18,7 @@ import numpy as np
 from ..core.models.angles import wrap_angle
 from ..core.config import SlamConfig
 from ..core.filter.association import plan_associations as core_plan
-from ..core.filter.inputs import MotionInput
+from ..core.filter.input_contract import MotionInput
 from ..core.models.observation import noise_covariance
 from ..core.types import Observations, StepReport
 

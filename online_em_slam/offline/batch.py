@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.config import SlamConfig
-from ..core.filter.inputs import MotionInput
+from ..core.filter.input_contract import MotionInput
 from ..core.models.angles import wrap_angle
 from ..core.models.motion import propagate, step_jitter
 from ..core.models.observation import (MIN_DISTANCE, information_noise, inverse_observation, noise_covariance,

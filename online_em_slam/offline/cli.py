@@ -142,7 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     common(compare)
     compare.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     compare.set_defaults(func=cmd_compare)
-    from .evaluate_bag import add_parser as add_evaluate     # recorded node runs: evaluate_bag.py
+    from .evaluate_recording import add_parser as add_evaluate     # recorded node runs
     add_evaluate(sub)
     return parser
 

@@ -24,7 +24,7 @@ from ..config import SlamConfig
 from ..em.complete import CompleteDataEM
 from ..em.observed import ObservedInformationEM
 from ..em.step import FilterStepData, MStep
-from .inputs import MotionInput, usable_observations
+from .input_contract import MotionInput, usable_observations
 from ..mapping import mapfile, persistence
 from ..mapping.landmarks import LandmarkTable
 from ..em.noise.learner import NoiseLearner
