@@ -1,4 +1,4 @@
-"""Monte Carlo benchmark of the seed's simulated experiment (issue: accuracy benchmark).
+"""Monte Carlo benchmark of the seed paper's simulated experiment.
 
     online-em-slam-benchmark --runs 20 --particles 100 --output results/benchmark
     online-em-slam-benchmark --runs 20 --laps 1 3 10 --output results/laps
