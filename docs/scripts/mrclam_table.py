@@ -28,7 +28,7 @@ def best(d, r, m):
     c.sort(key=lambda x: (-x[0][2], x[0][0]))
     return c[0]
 rows, summ = [], collections.defaultdict(list)
-print("| run | online EM (default) | online EM + motion gains (opt-in) | EKF-SLAM | FastSLAM 2.0 | GTSAM batch |")
+print("| run | online EM, no calibration | online EM, `config/mrclam.yaml` | EKF-SLAM | FastSLAM 2.0 | GTSAM batch |")
 print("|---|---|---|---|---|---|")
 wins = wins_g = 0
 for d in (1, 9):
