@@ -7,8 +7,9 @@ distance of the innovation, S its covariance), (dof + 2) log(1 + d2/dof) +
 log det S for Student-t noise, whose gates are quantiles of d2's own law
 (2 F(2, dof) instead of chi-square(2)).  At most one observation per landmark
 per scan: the pairing is a linear assignment (scipy's Hungarian solver).
-The particle filter's candidates, their moment-matched gates and the merging of
-new landmarks one scan creates twice are at the end.
+The particle filter's candidates, their moment-matched gates, the merging of
+new landmarks one scan creates twice and the bound on how many one scan creates
+are at the end.
 """
 from __future__ import annotations
 
@@ -197,3 +198,17 @@ def merge_close(positions: np.ndarray, obs_idx: np.ndarray, radius: float) -> tu
         if keep[i]:
             keep[j] = False
     return positions[keep], obs_idx[keep]
+
+
+def nearest_first(ranges: np.ndarray, limit: int) -> np.ndarray:
+    """Mask of the ``limit`` smallest ``ranges`` (ties: the earlier observation), in scan order.
+
+    The per-scan bound on new landmarks (``association.max_new_landmarks_per_scan``):
+    a near observation's inverse is the most precise start for a landmark, and the
+    dropped far ones are created on a later scan if they are real."""
+    ranges = np.asarray(ranges, dtype=float).reshape(-1)
+    keep = np.ones(ranges.size, dtype=bool)
+    if ranges.size > limit:
+        keep[:] = False
+        keep[np.argsort(ranges, kind="stable")[:max(int(limit), 0)]] = True
+    return keep
