@@ -189,14 +189,17 @@ def predicted_measurements(theta: np.ndarray, sensor: np.ndarray, w: np.ndarray,
 def merge_close(positions: np.ndarray, obs_idx: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Of new landmark ``positions`` (k, 2) closer than ``radius`` to each other, the earlier is
     kept: (kept positions, their observation indices).  A k-d tree keeps this O(n log n) in
-    memory and time for a hostile cloud, where an n x n distance matrix would not."""
+    memory and time for a hostile cloud, where an n x n distance matrix would not: the loop
+    runs over the kept landmarks (one neighbour query each), never over the pairs, which a
+    cloud of coincident points makes n^2 / 2."""
     if positions.shape[0] < 2:
         return positions, obs_idx
-    pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")
+    tree = cKDTree(positions)
     keep = np.ones(positions.shape[0], dtype=bool)
-    for i, j in pairs[np.argsort(pairs[:, 0], kind="stable")]:
+    for i in range(positions.shape[0]):
         if keep[i]:
-            keep[j] = False
+            near = np.asarray(tree.query_ball_point(positions[i], radius), dtype=int)
+            keep[near[near > i]] = False
     return positions[keep], obs_idx[keep]
 
 
