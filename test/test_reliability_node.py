@@ -1,7 +1,8 @@
 """Issue 12 (reliability) against a live node: run-time parameters (defect 3),
 corrupt map files on ~/load_map (defect 4), map_file confinement (defect 8),
-bounded ~/path (defect 9), odometry quaternions (defect 10) and bad observation
-fields, each counted under dropped.<reason> and the node still running."""
+bounded ~/path (defect 9), odometry quaternions (defect 10), bad observation
+fields and a flood of unknown points (item 8), each counted under
+dropped.<reason> and the node still running."""
 import math
 import os
 
@@ -17,7 +18,7 @@ from std_msgs.msg import Header  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from online_em_slam.ros import conversions as conv  # noqa: E402
-from test_node import T0, finite_pose  # noqa: E402
+from test_node import T0, finite_pose, landmark_table  # noqa: E402
 from test_reliability import make_cloud  # noqa: E402
 
 
@@ -177,3 +178,30 @@ def test_bad_observation_fields_are_dropped_and_counted(ros):
     assert ros.spin_until(lambda: all(ros.drops().get(k) == v for k, v in expected.items()), 5.0), ros.drops()
     assert sorted(node.slam.landmarks().ids.tolist()) == [1, 2, 2 ** 31 - 1]
     assert math.isfinite(node.slam.pose().mean[0])
+
+
+# ----------------------------------------------------------------- item 8: a flood of unknown points
+def test_flood_scan_is_bounded_and_the_published_map_holds_confirmed_landmarks(ros):
+    """One scan of 1,000 unknown-id points: at most max_new_landmarks_per_scan are
+    created (the rest counted), and ~/landmarks and its markers show the confirmed
+    map only (before: every tentative landmark, 969 on the filed run)."""
+    node = ros.start(motion_source="odom")
+    drive(ros, node, T0, 5)                          # landmarks 1 and 2, seen 5 times: confirmed
+    stamp = T0 + 0.5
+    rng = np.random.default_rng(0)
+    ros.odom(stamp, 0.05, 0.0, 0.0)
+    ros.cloud(stamp, rng.uniform(1.0, 29.0, 1000), rng.uniform(-1.5, 1.5, 1000), np.full(1000, -1))
+    assert ros.spin_until(lambda: node.all_drops().get("new_landmark_limit", 0) > 0, 10.0), node.all_drops()
+    limit = node.slam.config.association.max_new_landmarks_per_scan
+    assert 2 < len(node.slam.landmarks()) <= 2 + limit, node.all_drops()
+
+    def after(topic):
+        return [m for m in ros.received[topic]
+                if abs(conv.stamp_to_sec((m.markers[0] if topic == "landmark_markers" else m).header.stamp)
+                       - stamp) < 1e-6]
+    assert ros.spin_until(lambda: after("landmarks") and after("landmark_markers"), 5.0)
+    assert set(landmark_table(after("landmarks")[-1])) == {1, 2}
+    markers = after("landmark_markers")[-1].markers
+    assert {m.id for m in markers if m.ns.endswith("/ids")} == {1, 2}
+    assert ros.spin_until(lambda: ros.drops().get("new_landmark_limit", 0) > 0, 5.0), ros.drops()
+    assert ros.diagnostics()["confirmed_landmarks"] == "2"

@@ -254,6 +254,12 @@ class AssociationConfig:
     max_observations_per_scan: usable points of one scan beyond this are dropped
                                (``too_many_observations``): a bound on the memory and
                                time one message can cost.
+    max_new_landmarks_per_scan: landmarks one scan may create (after merging); the
+                               nearest creations are kept, the others dropped
+                               (``new_landmark_limit``).  The M-step's joint system is
+                               O(M^2) in memory, so this bounds what one hostile scan
+                               adds, and with ``tentative_timeout`` what a sustained
+                               flood keeps: at most this times (timeout + 1) tentative rows.
     """
 
     # Both gates are chi-square quantiles: a probability of 1 is an infinite gate.
@@ -275,6 +281,9 @@ class AssociationConfig:
     gate_heading_std: float = param(0.0, 0.0, 3.2, doc="Extra heading std (rad) in the association gate only.")
     max_observations_per_scan: int = param(1000, 1, 100000, doc="Usable points of one scan beyond this are "
                                            "dropped (too_many_observations).")
+    max_new_landmarks_per_scan: int = param(50, 1, 100000, doc="Landmarks one scan may create; the nearest "
+                                            "are kept, the others dropped (new_landmark_limit). Bounds the "
+                                            "growth of the O(M^2) map system by a flood of unknown points.")
 
     def validate(self, prefix: str = "association") -> None:
         check_fields(self, prefix, {"new_landmark_probability": {"lo": self.gate_probability, "lo_open": False}})

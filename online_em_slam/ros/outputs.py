@@ -209,7 +209,11 @@ class Outputs:
         self.particles_pub.publish(conv.particles_to_msg(self.node.header(slam.last_stamp, s.map_frame), poses))
 
     def publish_map(self) -> None:
-        """Landmark cloud, markers and path; rate-limited by map_publish_period."""
+        """Landmark cloud, markers and path; rate-limited by map_publish_period.
+
+        The cloud and the markers hold the confirmed landmarks only: a tentative one
+        is a candidate (association.confirm_observations), and one scan of clutter
+        would otherwise be published as the map until it is pruned."""
         node = self.node
         with node.lock:
             if not self.map_dirty:
@@ -217,7 +221,7 @@ class Outputs:
             self.map_dirty = False
             s = node.settings
             header = node.header(node.slam.last_stamp, s.map_frame)
-            landmarks = node.slam.landmarks()
+            landmarks = node.slam.landmarks(confirmed_only=True)     # the map: tentative rows are candidates
             cloud, skipped = conv.landmarks_to_cloud(header, landmarks)
             for reason, count in skipped.items():
                 node.drops[reason] += count

@@ -7,8 +7,9 @@ distance of the innovation, S its covariance), (dof + 2) log(1 + d2/dof) +
 log det S for Student-t noise, whose gates are quantiles of d2's own law
 (2 F(2, dof) instead of chi-square(2)).  At most one observation per landmark
 per scan: the pairing is a linear assignment (scipy's Hungarian solver).
-The particle filter's candidates, their moment-matched gates and the merging of
-new landmarks one scan creates twice are at the end.
+The particle filter's candidates, their moment-matched gates, the merging of
+new landmarks one scan creates twice and the bound on how many one scan creates
+are at the end.
 """
 from __future__ import annotations
 
@@ -188,12 +189,29 @@ def predicted_measurements(theta: np.ndarray, sensor: np.ndarray, w: np.ndarray,
 def merge_close(positions: np.ndarray, obs_idx: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Of new landmark ``positions`` (k, 2) closer than ``radius`` to each other, the earlier is
     kept: (kept positions, their observation indices).  A k-d tree keeps this O(n log n) in
-    memory and time for a hostile cloud, where an n x n distance matrix would not."""
+    memory and time for a hostile cloud, where an n x n distance matrix would not: the loop
+    runs over the kept landmarks (one neighbour query each), never over the pairs, which a
+    cloud of coincident points makes n^2 / 2."""
     if positions.shape[0] < 2:
         return positions, obs_idx
-    pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")
+    tree = cKDTree(positions)
     keep = np.ones(positions.shape[0], dtype=bool)
-    for i, j in pairs[np.argsort(pairs[:, 0], kind="stable")]:
+    for i in range(positions.shape[0]):
         if keep[i]:
-            keep[j] = False
+            near = np.asarray(tree.query_ball_point(positions[i], radius), dtype=int)
+            keep[near[near > i]] = False
     return positions[keep], obs_idx[keep]
+
+
+def nearest_first(ranges: np.ndarray, limit: int) -> np.ndarray:
+    """Mask of the ``limit`` smallest ``ranges`` (ties: the earlier observation), in scan order.
+
+    The per-scan bound on new landmarks (``association.max_new_landmarks_per_scan``):
+    a near observation's inverse is the most precise start for a landmark, and the
+    dropped far ones are created on a later scan if they are real."""
+    ranges = np.asarray(ranges, dtype=float).reshape(-1)
+    keep = np.ones(ranges.size, dtype=bool)
+    if ranges.size > limit:
+        keep[:] = False
+        keep[np.argsort(ranges, kind="stable")[:max(int(limit), 0)]] = True
+    return keep

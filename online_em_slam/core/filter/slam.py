@@ -19,7 +19,8 @@ import numpy as np
 
 from ..models import motion as motion_models
 from ..models.angles import wrap_angle
-from .association import Gates, candidate_rows, merge_close, plan_associations, predicted_measurements
+from .association import (Gates, candidate_rows, merge_close, nearest_first, plan_associations,
+                          predicted_measurements)
 from ..config import SlamConfig
 from ..em.complete import CompleteDataEM
 from ..em.observed import ObservedInformationEM
@@ -371,18 +372,26 @@ class OnlineEMSlam:
     def _create_landmarks(self, plan, y: np.ndarray, mean_sensor: np.ndarray, drop) -> np.ndarray:
         """Landmarks for the plan's creations, by inverting h at the mean sensor pose; their rows.
 
-        Unknown-id creations closer than the range noise are merged first; creations
-        beyond ``max_landmarks`` are dropped (``map_full``).  Reorders nothing: the
-        kept creations are the first entries of ``plan.create_obs`` afterwards.
+        Unknown-id creations closer than the range noise are merged first; of the rest
+        the ``max_new_landmarks_per_scan`` nearest are kept (``new_landmark_limit``),
+        and creations beyond ``max_landmarks`` are dropped (``map_full``).  The kept
+        creations, in the plan's order, are the first entries of ``plan.create_obs``
+        afterwards.
         """
+        assoc = self.config.association
         given = np.array([i is not None for i in plan.create_ids], dtype=bool)
         positions = inverse_observation(mean_sensor[None], y[plan.create_obs]).reshape(-1, 2)
         fresh_pos, fresh_obs = self._merge_new(positions[~given], plan.create_obs[~given])
-        ids = [i for i in plan.create_ids if i is not None]
-        ids += self._map.next_ids(len(fresh_obs), ids)
-        plan.create_obs = np.concatenate([plan.create_obs[given], fresh_obs]).astype(int)
+        known_ids = np.array([i for i in plan.create_ids if i is not None], dtype=np.int64)
+        obs_idx = np.concatenate([plan.create_obs[given], fresh_obs]).astype(int)
         positions = np.vstack([positions[given], fresh_pos]).reshape(-1, 2)
-        room = max(self.config.association.max_landmarks - len(self._map), 0)
+        keep = nearest_first(y[obs_idx, 0], assoc.max_new_landmarks_per_scan)
+        drop("new_landmark_limit", int(keep.size - keep.sum()))
+        n_given = int(given.sum())
+        ids = [int(i) for i in known_ids[keep[:n_given]]]
+        ids += self._map.next_ids(int(keep[n_given:].sum()), ids)
+        plan.create_obs, positions = obs_idx[keep], positions[keep]
+        room = max(assoc.max_landmarks - len(self._map), 0)
         drop("map_full", len(ids) - room)
         if not ids or room == 0:
             return np.zeros(0, dtype=int)
