@@ -127,12 +127,77 @@ def write_topics(output, messages, counts: dict, msgtypes: dict, latched, typest
     return written
 
 
-def _open(path):
-    from rosbags.highlevel import AnyReader
+def check_bag_path(path) -> Path:
+    """``path`` as a Path when it may be a bag; FileNotFoundError or BagError (one line naming
+    it) when it does not exist, is a directory without metadata.yaml or a file of no bag kind."""
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"bag {path} does not exist")
-    return AnyReader([path], default_typestore=_typestore())
+        raise FileNotFoundError(f"{path}: does not exist")
+    if path.is_dir() and not (path / "metadata.yaml").exists():
+        raise BagError(f"{path}: not a bag: the directory has no metadata.yaml")
+    if path.is_file() and path.suffix not in (".bag", ".mcap", ".db3"):
+        raise BagError(f"{path}: not a bag: a plain file (a ROS 2 bag is a directory with metadata.yaml)")
+    return path
+
+
+def _open(path):
+    from rosbags.highlevel import AnyReader
+    return AnyReader([check_bag_path(path)], default_typestore=_typestore())
+
+
+def bag_error(path, error: BaseException) -> Exception:
+    """``error`` raised by rosbags on ``path`` as a one-line :class:`BagError` naming the bag
+    (BagError and FileNotFoundError pass as they are)."""
+    if isinstance(error, (BagError, FileNotFoundError)):
+        return error
+    first_line = (str(error).splitlines() or [""])[0]
+    return BagError(f"{path}: cannot read the bag: {type(error).__name__}: {first_line}")
+
+
+def normal_msgtype(name: str) -> str:
+    """'pkg/Type' -> 'pkg/msg/Type' (other names unchanged)."""
+    parts = str(name).split("/")
+    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else str(name)
+
+
+def node_topic_types(odom: str = "odom", control: str = "control",
+                     observations: str = "landmark_observations") -> dict[str, str]:
+    """topic -> the message type the node and the offline tools read on it (absolute names)."""
+    return {absolute_topic(odom): "nav_msgs/msg/Odometry",
+            absolute_topic(control): "geometry_msgs/msg/TwistStamped",
+            absolute_topic(observations): "sensor_msgs/msg/PointCloud2",
+            "/tf": "tf2_msgs/msg/TFMessage", "/tf_static": "tf2_msgs/msg/TFMessage",
+            "/clock": "rosgraph_msgs/msg/Clock",
+            "/ground_truth/position": "geometry_msgs/msg/PointStamped",
+            "/ground_truth/pose": "geometry_msgs/msg/PoseStamped",
+            "/ground_truth/landmarks": "sensor_msgs/msg/PointCloud2"}
+
+
+def type_problems(connections: Iterable[tuple[str, str]], expected: dict[str, str]) -> list[str]:
+    """What is wrong with the (topic, msgtype) connections of a bag against ``expected``
+    (topic -> type): a topic recorded with two types, or with another type than expected."""
+    types: dict[str, list[str]] = {}
+    for topic, msgtype in connections:
+        seen = types.setdefault(topic, [])
+        if normal_msgtype(msgtype) not in seen:
+            seen.append(normal_msgtype(msgtype))
+    problems = []
+    for topic, seen in types.items():
+        want = expected.get(topic)
+        if len(seen) > 1:
+            problems.append(f"{topic} is recorded with {len(seen)} types ({', '.join(seen)})")
+        elif want is not None and seen[0] != want:
+            problems.append(f"{topic} is {seen[0]}, expected {want}")
+    return problems
+
+
+def bag_connections(path) -> list[tuple[str, str, int]]:
+    """(topic, msgtype, message count) of every connection, from the bag's metadata."""
+    try:
+        with _open(path) as reader:
+            return [(c.topic, c.msgtype, c.msgcount) for c in reader.connections]
+    except Exception as error:  # noqa: BLE001 - rosbags raises many kinds on a bad file
+        raise bag_error(path, error) from None
 
 
 def read_bag(path, topics: Iterable[str] | None = None) -> Iterator[tuple[str, float, object]]:
@@ -157,11 +222,8 @@ def read_bag_timed(path, topics: Iterable[str] | None = None,
     """
     try:
         yield from _read_timed(path, topics, decode)
-    except (BagError, FileNotFoundError):
-        raise
     except Exception as error:  # noqa: BLE001 - rosbags raises many kinds on a bad file
-        first_line = (str(error).splitlines() or [""])[0]
-        raise BagError(f"{path}: cannot read the bag: {type(error).__name__}: {first_line}") from None
+        raise bag_error(path, error) from None
 
 
 def _read_timed(path, topics, decode):
@@ -180,12 +242,11 @@ def _read_timed(path, topics, decode):
 
 def bag_topics(path) -> dict[str, tuple[str, int]]:
     """topic -> (msgtype, message count) from the bag's metadata."""
-    with _open(path) as reader:
-        out: dict[str, tuple[str, int]] = {}
-        for c in reader.connections:
-            msgtype, n = out.get(c.topic, (c.msgtype, 0))
-            out[c.topic] = (msgtype, n + c.msgcount)
-        return out
+    out: dict[str, tuple[str, int]] = {}
+    for topic, msgtype, count in bag_connections(path):
+        msgtype, n = out.get(topic, (msgtype, 0))
+        out[topic] = (msgtype, n + count)
+    return out
 
 
 def count_messages(path, topics: Iterable[str] | None = None) -> Counter:

@@ -3,7 +3,7 @@
     online-em-slam-replay BAG [--rate R] [--topics T ...] [--wait-subscribers TOPIC:COUNT ...]
                           [--wait-timeout S] [--clock [HZ]] [--start-delay S] [--ack-timeout S]
                           [--loop] [--start-offset S] [--playback-duration S] [--remap OLD:=NEW ...]
-                          [--exclude T ...] [--exclude-regex R] [--start-paused]
+                          [--exclude T ...] [--exclude-regex R] [--start-paused] [--no-input-check]
 
 Raw CDR bytes from the bag (rosbags reader) are published unchanged through
 publishers created with the real rclpy message classes (type names resolved with
@@ -18,7 +18,16 @@ remap, exclude, start paused) are described in :mod:`online_em_slam.bag.replay_o
 
 At the end the number of messages published per topic is printed, followed by
 one JSON line ``{"published": {...}, "skipped_topics": {...}, ...}`` on stdout.
-Topics whose message package is not importable are skipped with a warning.
+Topics whose message package is not importable are skipped with a one-line warning
+and listed under ``skipped_topics``.
+
+A bad bag gets one line ``online-em-slam-replay: error: BAG: what is wrong`` on
+stderr and exit status 1, before any publisher exists (:func:`check_bag`): not a
+bag, unreadable, no messages, a replayed topic whose published name the node reads
+with another message type (``/odom`` as std_msgs/String; leave it out with
+``--exclude``) or a topic recorded with two types, and, unless ``--no-input-check``,
+no motion input (/odom, /control) or no /landmark_observations.  A bag that goes
+bad while playing (a corrupt chunk) ends the replay the same way, after the summary.
 """
 from __future__ import annotations
 
@@ -30,7 +39,8 @@ import time
 from pathlib import Path
 
 from . import replay_options
-from .bagio import is_latched
+from .bagio import (BagError, absolute_topic, bag_error, check_bag_path, is_latched, node_topic_types,
+                    type_problems)
 
 
 def message_class(msgtype: str):
@@ -71,15 +81,72 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ack-timeout", type=float, default=10.0,
                    help="at the end, seconds to wait until reliable subscribers acknowledged everything")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    p.add_argument("--no-input-check", action="store_true",
+                   help="replay a bag that lacks the node's motion or observation topic")
     return p
+
+
+def check_bag(bag: Path, args) -> None:
+    """Refuse (BagError, one line naming the bag) before any publisher exists: a bag rosbags cannot
+    open, one without messages, a replayed topic published under a name the node reads but of
+    another type (or of two types), and, unless --no-input-check, a bag without the node's motion
+    input (odom or control) or observations as recorded (the node's default topic names; types are
+    checked under the published names, after --remap)."""
+    from rosbags.rosbag2 import Reader
+
+    from ..parameters.specs import NodeSettings
+
+    check_bag_path(bag)
+    try:
+        with Reader(bag) as reader:
+            conns = [(c.topic, c.msgtype, c.msgcount, _chosen(args, c.topic)) for c in reader.connections]
+    except Exception as error:  # noqa: BLE001 - rosbags raises many kinds on a bad file
+        raise bag_error(bag, error) from None
+    node = NodeSettings()
+    expected = node_topic_types(node.odom_topic, node.control_topic, node.observations_topic)
+    problems = type_problems([(replay_options.remap(args, topic), msgtype) for topic, msgtype, _, chosen in conns
+                              if chosen], expected)
+    if problems:
+        raise BagError(f"{bag}: {'; '.join(problems)} (leave such a topic out with --exclude)")
+    counts = {}
+    for topic, _, n, _ in conns:
+        counts[topic] = counts.get(topic, 0) + n
+    if not sum(counts.values()):
+        raise BagError(f"{bag}: the bag holds no messages")
+    if args.no_input_check:
+        return
+    motion = [absolute_topic(node.odom_topic), absolute_topic(node.control_topic)]
+    if not any(counts.get(t) for t in motion):
+        raise BagError(f"{bag}: no motion input for the node: no messages on {' or '.join(motion)} "
+                       "(--no-input-check replays it anyway)")
+    observations = absolute_topic(node.observations_topic)
+    if not counts.get(observations):
+        raise BagError(f"{bag}: no observations for the node: no messages on {observations} "
+                       "(--no-input-check replays it anyway)")
+
+
+def _chosen(args, topic: str) -> bool:
+    """Whether ``topic`` is replayed (--topics, --exclude, --exclude-regex)."""
+    return (args.topics is None or topic in args.topics) and replay_options.selected(args, topic)
+
+
+def _guarded(bag, iterator):
+    """``iterator`` with what the bag reader raises turned into a one-line BagError."""
+    while True:
+        try:
+            item = next(iterator)
+        except StopIteration:
+            return
+        except Exception as error:  # noqa: BLE001 - rosbags raises many kinds on a bad file
+            raise bag_error(bag, error) from None
+        yield item
 
 
 def _publishers(node, reader, args, log):
     """One publisher per replayed topic, with the recorded type and latching; the
     connections to play, publishers, skipped topics (why), per-topic counts."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-    conns = [c for c in reader.connections if (args.topics is None or c.topic in args.topics)
-             and replay_options.selected(args, c.topic)]
+    conns = [c for c in reader.connections if _chosen(args, c.topic)]
     if args.topics:
         missing = sorted(set(args.topics) - {c.topic for c in reader.connections})
         if missing:
@@ -92,7 +159,7 @@ def _publishers(node, reader, args, log):
             cls = message_class(conn.msgtype)
         except (ImportError, AttributeError, ValueError) as exc:
             skipped[conn.topic] = f"{conn.msgtype}: {exc}"
-            log(f"replay: skipping {conn.topic} ({conn.msgtype} not importable)")
+            log(f"online-em-slam-replay: warning: {args.bag}: skipping {conn.topic}: {conn.msgtype} is not importable")
             continue
         latched = is_latched(conn) or conn.topic == "/tf_static"
         qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=100000, reliability=ReliabilityPolicy.RELIABLE,
@@ -133,7 +200,7 @@ def _play(args, reader, conns, node, publishers, counts, log) -> float:
     bag_start = last_clock = None
     n = 0
     # replay_options.messages paces the messages (rate, pause, loop, offset) and sends /clock.
-    for conn, log_time, raw in replay_options.messages(args, reader, conns, node, log):
+    for conn, log_time, raw in _guarded(args.bag, replay_options.messages(args, reader, conns, node, log)):
         bag_start = log_time if bag_start is None else bag_start
         if args.rate > 0:
             delay = start_wall + (log_time - bag_start) * 1e-9 / args.rate - time.monotonic()
@@ -175,8 +242,10 @@ def main(argv=None) -> int:
         print(f"online-em-slam-replay: error: {exc}", file=sys.stderr)
         return 2
     bag = Path(args.bag)
-    if not bag.exists():
-        print(f"online-em-slam-replay: error: bag {bag} does not exist", file=sys.stderr)
+    try:
+        check_bag(bag, args)
+    except (BagError, FileNotFoundError) as error:
+        print(f"online-em-slam-replay: error: {error}", file=sys.stderr)
         return 1
     import rclpy
     from rosbags.rosbag2 import Reader
@@ -198,6 +267,9 @@ def main(argv=None) -> int:
             acked = _acknowledged(publishers, args.ack_timeout, log)
     except KeyboardInterrupt:
         exit_code = 130
+    except BagError as error:                 # the bag went bad while playing (truncated, corrupt)
+        print(f"online-em-slam-replay: error: {error}", file=sys.stderr)
+        exit_code = 1
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

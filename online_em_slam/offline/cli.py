@@ -17,7 +17,10 @@ with fields range, bearing and optional id, range_std, bearing_std) ->
 parameter file (``--params``), read with :mod:`online_em_slam.parameters.yaml_file`.
 Empty observation clouds and observations before the first motion input are not
 fed (counted under ``runner_skipped`` in metrics.json, with every input the path
-or the node's cloud and quaternion checks refused, by reason).
+or the node's cloud and quaternion checks refused, by reason).  A bag or parameter
+file that cannot be used (not a bag, unreadable, a topic of another message type
+than the node reads, no motion input, no observations, a refused value) ends the
+run with one line ``online-em-slam: error: FILE: what is wrong`` and exit status 1.
 
 Initial pose (``--initial-pose``, default ``auto``): the ``initial_pose.*`` keys
 of the params file when it sets any; otherwise, when the bag has
@@ -49,22 +52,30 @@ from pathlib import Path
 
 from ..core.config import SlamConfig
 from .evaluation import DEFAULT_MATCH_GATE
-from ..parameters.yaml_file import config_from_params, load_params
+from ..parameters.specs import ParameterError
+from ..parameters.yaml_file import ParamFileError, config_from_params, load_params
 from .report import comparison_markdown, comparison_row, json_dump, summary_line
 from .runner import METHODS, choose_initial_pose, read_inputs, run_one
 
 
 def prepare(args) -> tuple:
     """(config, settings, file values, inputs, initial pose) from the common arguments."""
-    file_values = {}
+    per_file, file_values = [], {}
     for path in args.params:
-        file_values.update(load_params(path))
+        try:
+            per_file.append((path, load_params(path)))
+        except OSError as error:            # a directory, unreadable: load_params lets these through
+            raise ParamFileError(f"{path}: cannot read the parameter file: {error.strerror or error}") from None
+        file_values.update(per_file[-1][1])
     overrides = {}
     if args.seed is not None:
         overrides["filter.seed"] = int(args.seed)
     if args.particles is not None:
         overrides["filter.num_particles"] = int(args.particles)
-    config, settings = config_from_params(file_values, overrides)
+    try:
+        config, settings = config_from_params(file_values, overrides)
+    except ParameterError as error:
+        raise ParameterError(f"{_culprit(per_file)}{error}") from None
     inputs = read_inputs(args.bag, settings)
     if not inputs.events:
         raise ValueError(f"{args.bag}: no inputs on the configured topics "
@@ -72,6 +83,16 @@ def prepare(args) -> tuple:
                          f"{settings.observations_topic})")
     initial = choose_initial_pose(args.initial_pose, inputs, config, settings, file_values)
     return config, settings, file_values, inputs, initial
+
+
+def _culprit(per_file) -> str:
+    """"FILE: " for the last parameter file whose values alone are refused (else "")."""
+    for path, values in reversed(per_file):
+        try:
+            config_from_params(values)
+        except ParameterError:
+            return f"{path}: "
+    return ""
 
 
 def _run_options(args, file_values: dict) -> dict:

@@ -168,11 +168,39 @@ class BagReader:
         self.landmark_ids = np.asarray(cols["id"], dtype=int) if "id" in cols else np.arange(len(self.landmarks))
 
 
+def check_bag_topics(bag, settings) -> None:
+    """Refuse (BagError, one line naming the bag) an empty bag, or one whose topics carry another
+    message type than the node reads there, or two types."""
+    from ..bag.bagio import BagError, bag_connections, node_topic_types, type_problems
+
+    expected = node_topic_types(settings.odom_topic, settings.control_topic, settings.observations_topic)
+    connections = bag_connections(bag)
+    problems = type_problems([(topic, msgtype) for topic, msgtype, _ in connections], expected)
+    if problems:
+        raise BagError(f"{bag}: {'; '.join(problems)}")
+    if not sum(count for _, _, count in connections):
+        raise BagError(f"{bag}: the bag holds no messages")
+
+
+def check_inputs_present(bag, settings, counts: Counter) -> None:
+    """Refuse (BagError) a bag without motion input or without observations (``counts``: messages
+    read per topic)."""
+    from ..bag.bagio import BagError
+
+    motion = absolute_topic(settings.control_topic if settings.motion_source == "control" else settings.odom_topic)
+    if not counts[motion]:
+        raise BagError(f"{bag}: no motion input: no messages on {motion} (motion_source: {settings.motion_source})")
+    observations = absolute_topic(settings.observations_topic)
+    if not counts[observations]:
+        raise BagError(f"{bag}: no observations: no messages on {observations}, nothing to map")
+
+
 def read_inputs(bag, settings) -> BagInputs:
     """First pass over ``bag`` (settings: NodeSettings): odometry poses, GPS, surveyed landmarks,
     message counts and the first input's stamp; the inputs themselves stream from ``events``."""
     from ..bag.bagio import read_bag_timed
 
+    check_bag_topics(bag, settings)
     reader = BagReader(settings)
     start = None
 
@@ -186,6 +214,7 @@ def read_inputs(bag, settings) -> BagInputs:
         if reader.events:
             start = reader.events[0][1] if start is None else start
             reader.events.clear()
+    check_inputs_present(bag, settings, reader.counts)
     n_inputs = sum(reader.counts[t] for t in reader.event_topics)
     return BagInputs(str(bag), BagEvents(bag, settings, n_inputs if start is not None else 0),
                      np.asarray(reader.odom_t, dtype=float), np.asarray(reader.odom_p, dtype=float).reshape(-1, 3),

@@ -21,7 +21,8 @@ TUM_FILES = ("trajectory.tum", "sensor_trajectory.tum", "ground_truth.tum")
 def write_tum(path, times, poses) -> None:
     """``poses``: (n, 3) x, y, yaw, or (n, 2) x, y (written with identity orientation)."""
     t = np.asarray(times, dtype=float).reshape(-1)
-    p = np.asarray(poses, dtype=float).reshape(len(t), -1)
+    p = np.asarray(poses, dtype=float)
+    p = p.reshape(len(t), -1) if p.size else np.zeros((len(t), 3))    # no poses: an empty file
     yaw = p[:, 2] if p.shape[1] >= 3 else np.zeros(len(t))
     rows = np.column_stack([t, p[:, 0], p[:, 1], np.zeros(len(t)), np.zeros(len(t)), np.zeros(len(t)),
                             np.sin(yaw / 2.0), np.cos(yaw / 2.0)])
