@@ -70,9 +70,9 @@ def test_a_huge_unknown_id_cloud_is_capped_and_costs_little_memory():
 
 
 def test_merging_of_new_landmarks_keeps_the_first_of_close_pairs():
-    slam = OnlineEMSlam(SlamConfig())
+    from online_em_slam.core.filter.association import merge_close
     positions = np.array([[0.0, 0.0], [0.5, 0.0], [5.0, 0.0], [5.2, 0.1], [20.0, 0.0]])
-    kept, index = slam._merge_new(positions, np.arange(5))
+    kept, index = merge_close(positions, np.arange(5), 2.0 * SlamConfig().noise.sigma_range)
     np.testing.assert_array_equal(index, [0, 2, 4])
 
 

@@ -181,9 +181,17 @@ class FilterConfig:
     seed: int | None = param(0, 0, INT32_MAX, optional=True, doc="Random seed; None draws a fresh seed.")
     initial_pose_std: tuple[float, float, float] = param((0.0, 0.0, 0.0), 0.0, 1e3, doc="Std of the initial "
                                                          "particle cloud: exactly 3 values (x m, y m, yaw rad).")
+    relocalisation_std: tuple[float, float, float] = param((2.0, 2.0, 0.5), 0.0, 1e3, doc="Std of the particle "
+                                                           "cloud around the saved pose when a map is loaded (the "
+                                                           "robot may have moved since): 3 values (x m, y m, yaw "
+                                                           "rad). No landmark is created until the cloud has "
+                                                           "narrowed to relocalisation_tolerance.")
+    relocalisation_tolerance: float = param(0.5, 0.0, 1e3, lo_open=True, doc="Position std (m, largest axis) "
+                                            "of the particle cloud below which a relocalisation is over.")
 
     def validate(self, prefix: str = "filter") -> None:
         check_length(f"{prefix}.initial_pose_std", self.initial_pose_std, 3, " (x, y, yaw)")
+        check_length(f"{prefix}.relocalisation_std", self.relocalisation_std, 3, " (x, y, yaw)")
         check_fields(self, prefix)
 
 

@@ -24,7 +24,8 @@ from scipy.stats import chi2
 
 from ..config import AssociationConfig, ObservationNoiseConfig
 from ..models.angles import wrap_angle
-from ..models.observation import innovation, landmark_jacobian, mahalanobis_2d, predict_observation
+from ..models.observation import (innovation, inverse_observation, landmark_jacobian, mahalanobis_2d,
+                                  predict_observation)
 from ..weighted import weighted_outer, weighted_pose_mean, weighted_sum
 
 NEW_LANDMARK = -1
@@ -215,3 +216,33 @@ def nearest_first(ranges: np.ndarray, limit: int) -> np.ndarray:
         keep[:] = False
         keep[np.argsort(ranges, kind="stable")[:max(int(limit), 0)]] = True
     return keep
+
+
+def creations(plan, y: np.ndarray, mean_sensor: np.ndarray, table, assoc: AssociationConfig, merge_radius: float,
+              drop, drops) -> tuple[np.ndarray, list[int]]:
+    """(positions (K, 2), ids) of the landmarks a scan's plan creates, by inverting h at the
+    mean sensor pose.
+
+    Unknown-id creations closer than ``merge_radius`` are merged first (counted in
+    ``drops`` as ``merged_new_landmark``); of the rest the ``max_new_landmarks_per_scan``
+    nearest are kept (``new_landmark_limit``), and creations beyond ``max_landmarks`` are
+    dropped (``map_full``).  The kept creations, in the plan's order, are the first entries
+    of ``plan.create_obs`` afterwards.
+    """
+    given = np.array([i is not None for i in plan.create_ids], dtype=bool)
+    positions = inverse_observation(mean_sensor[None], y[plan.create_obs]).reshape(-1, 2)
+    fresh_pos, fresh_obs = merge_close(positions[~given], plan.create_obs[~given], merge_radius)
+    if fresh_obs.size < int((~given).sum()):
+        drops["merged_new_landmark"] += int((~given).sum() - fresh_obs.size)
+    known_ids = np.array([i for i in plan.create_ids if i is not None], dtype=np.int64)
+    obs_idx = np.concatenate([plan.create_obs[given], fresh_obs]).astype(int)
+    positions = np.vstack([positions[given], fresh_pos]).reshape(-1, 2)
+    keep = nearest_first(y[obs_idx, 0], assoc.max_new_landmarks_per_scan)
+    drop("new_landmark_limit", int(keep.size - keep.sum()))
+    n_given = int(given.sum())
+    ids = [int(i) for i in known_ids[keep[:n_given]]]
+    ids += table.next_ids(int(keep[n_given:].sum()), ids)
+    plan.create_obs, positions = obs_idx[keep], positions[keep]
+    room = max(assoc.max_landmarks - len(table), 0)
+    drop("map_full", len(ids) - room)
+    return positions[:room], ids[:room]

@@ -47,3 +47,11 @@ def sample_gaussians(means: np.ndarray, covariances: np.ndarray, rng: np.random.
     draws = means + np.einsum("nij,nj->ni", chol, rng.standard_normal(means.shape))
     draws[:, 2] = wrap_angle(draws[:, 2])
     return draws
+
+
+def localised(particles: np.ndarray, weights: np.ndarray, tolerance: float) -> bool:
+    """The weighted cloud's position std (largest axis) is at most ``tolerance`` (m)."""
+    w = weights / weights.sum()
+    dev = particles[:, :2] - w @ particles[:, :2]
+    cov = (dev * w[:, None]).T @ dev
+    return bool(np.linalg.eigvalsh(0.5 * (cov + cov.T))[-1] <= tolerance ** 2)

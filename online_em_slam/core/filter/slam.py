@@ -19,8 +19,7 @@ import numpy as np
 
 from ..models import motion as motion_models
 from ..models.angles import wrap_angle
-from .association import (Gates, candidate_rows, merge_close, nearest_first, plan_associations,
-                          predicted_measurements)
+from .association import Gates, candidate_rows, creations, plan_associations, predicted_measurements
 from ..config import SlamConfig
 from ..em.complete import CompleteDataEM
 from ..em.observed import ObservedInformationEM
@@ -29,11 +28,11 @@ from .input_contract import MotionInput, usable_observations
 from ..mapping import mapfile, persistence
 from ..mapping.landmarks import LandmarkTable
 from ..em.noise.learner import NoiseLearner
-from ..models.observation import information_noise, inverse_observation, noise_covariance, sensor_poses
+from ..models.observation import information_noise, noise_covariance, sensor_poses
 from .observation_terms import ObservationTerms, observation_terms
 from .prediction import PendingMotion
 from .warmup import WarmupReplay
-from .particles import effective_sample_size, normalize_log_weights, sample_gaussians, systematic_resample
+from .particles import effective_sample_size, localised, normalize_log_weights, sample_gaussians, systematic_resample
 from ..weighted import weighted_pose_covariance, weighted_pose_mean
 from ..types import LandmarkMap, Observations, PoseEstimate, StepReport
 
@@ -90,6 +89,7 @@ class OnlineEMSlam:
         self._pred_cov = np.zeros((n, 3, 3))
         self._motion = PendingMotion(pose)       # queued segments and the mean pose's track (prediction.py)
         self._resample_pending = False
+        self._relocalising = False               # after a map load: no landmark created until localised
         self._input = MotionInput(cfg.motion, self.drops, stamp)
         self._anchor_time: float | None = stamp
         self._step = 0
@@ -142,6 +142,19 @@ class OnlineEMSlam:
         self._resample_pending, self._ess = False, float(n)
         self._anchor_time = self._input.last_stamp
         self._warmup.discard()           # the inputs so far no longer lead to this state
+
+    def relocalise(self, pose, std=None) -> None:
+        """The robot is near ``pose`` on the current map but may have moved (a map loaded
+        after a restart): the particles spread with ``std`` (default
+        ``filter.relocalisation_std``) and the known landmarks weigh them; no landmark is
+        created (``relocalising``) until the cloud's position std is below
+        ``filter.relocalisation_tolerance``, so a wrong guess does not duplicate the map."""
+        self.set_pose(pose, self.config.filter.relocalisation_std if std is None else std)
+        self._relocalising = len(self._map) > 0
+
+    @property
+    def relocalising(self) -> bool:
+        return self._relocalising
 
     def restart_time_line(self, pose, std=None) -> None:
         """A confirmed jump of the time line (a bag played in a loop, a clock set back):
@@ -264,9 +277,13 @@ class OnlineEMSlam:
         log_w = log_prior + terms.log_likelihood
         weights = self._normalise(log_w)
         data = self._step_data(particles, weights, prior_weights, ancestors, trans_cov, rows, terms, sensor)
-        self._noise.update(data, self._map.n_obs[rows], self._map.ids[rows])   # noise statistics (em/noise/)
-        pose_correction = self._m_step.update(data, self._map)
+        pose_correction = None
+        if not self._relocalising:      # a cloud still looking for its pose teaches neither map nor noise
+            self._noise.update(data, self._map.n_obs[rows], self._map.ids[rows])   # noise statistics (em/noise/)
+            pose_correction = self._m_step.update(data, self._map)
         self._commit(particles, weights, pose_correction)
+        if self._relocalising and rows.size:
+            self._relocalising = not localised(particles, weights, self.config.filter.relocalisation_tolerance)
         report.n_associated = int(rows.size)
         report.n_pruned = self._prune_tentative()
 
@@ -370,41 +387,15 @@ class OnlineEMSlam:
                 np.concatenate([plan.update_rows, new_rows]).astype(int))
 
     def _create_landmarks(self, plan, y: np.ndarray, mean_sensor: np.ndarray, drop) -> np.ndarray:
-        """Landmarks for the plan's creations, by inverting h at the mean sensor pose; their rows.
-
-        Unknown-id creations closer than the range noise are merged first; of the rest
-        the ``max_new_landmarks_per_scan`` nearest are kept (``new_landmark_limit``),
-        and creations beyond ``max_landmarks`` are dropped (``map_full``).  The kept
-        creations, in the plan's order, are the first entries of ``plan.create_obs``
-        afterwards.
-        """
-        assoc = self.config.association
-        given = np.array([i is not None for i in plan.create_ids], dtype=bool)
-        positions = inverse_observation(mean_sensor[None], y[plan.create_obs]).reshape(-1, 2)
-        fresh_pos, fresh_obs = self._merge_new(positions[~given], plan.create_obs[~given])
-        known_ids = np.array([i for i in plan.create_ids if i is not None], dtype=np.int64)
-        obs_idx = np.concatenate([plan.create_obs[given], fresh_obs]).astype(int)
-        positions = np.vstack([positions[given], fresh_pos]).reshape(-1, 2)
-        keep = nearest_first(y[obs_idx, 0], assoc.max_new_landmarks_per_scan)
-        drop("new_landmark_limit", int(keep.size - keep.sum()))
-        n_given = int(given.sum())
-        ids = [int(i) for i in known_ids[keep[:n_given]]]
-        ids += self._map.next_ids(int(keep[n_given:].sum()), ids)
-        plan.create_obs, positions = obs_idx[keep], positions[keep]
-        room = max(assoc.max_landmarks - len(self._map), 0)
-        drop("map_full", len(ids) - room)
-        if not ids or room == 0:
+        """Landmarks for the plan's creations (association.creations), none while relocalising;
+        their rows.  The kept creations are the first entries of ``plan.create_obs`` afterwards."""
+        if self._relocalising:
+            drop("relocalising", len(plan.create_obs))
             return np.zeros(0, dtype=int)
-        return self._add_landmarks(positions[:room], np.array(ids[:room]))
-
-    def _merge_new(self, positions: np.ndarray, obs_idx: np.ndarray):
-        """Two unexplained observations of one scan closer than twice the range noise make
-        one landmark (association.merge_close); the merged ones are counted."""
         radius = 2.0 * self._noise.noise_config().sigma_range
-        kept_pos, kept_obs = merge_close(positions, obs_idx, radius)
-        if kept_obs.size < obs_idx.size:
-            self.drops["merged_new_landmark"] += int(obs_idx.size - kept_obs.size)
-        return kept_pos, kept_obs
+        positions, ids = creations(plan, y, mean_sensor, self._map, self.config.association, radius, drop,
+                                   self.drops)
+        return self._add_landmarks(positions, np.array(ids)) if ids else np.zeros(0, dtype=int)
 
     def _prune_tentative(self) -> int:
         assoc = self.config.association
@@ -494,6 +485,8 @@ class OnlineEMSlam:
             self._restore_map(loaded)
             self._restore_noise(loaded)
             self._warmup.discard()
+            if restore_pose:
+                self.relocalise(pose)
         except BaseException:
             self.__dict__.clear()
             self.__dict__.update(snapshot)
