@@ -68,3 +68,23 @@ def test_a_stopped_input_turns_diagnostics_to_warn_within_two_seconds(ros):
     assert ros.spin_until(lambda: any("odom for" in w for w in warnings()), timeout=2.0)
     assert time.monotonic() - stopped < 2.0
     assert all("silent inputs" in w for w in warnings())
+
+
+def test_a_subscribed_topic_that_never_delivers_is_named(ros, capfd):
+    """ROS-conventions item 5: with control_topic misspelled, /diagnostics and the log name the
+    control topic (resolved) while the observations flow, and the log points at /control."""
+    ros.start(motion_source="control", control_topic="contrl", input_delay=0.3, diagnostics_period=0.2)
+    for k in range(20):
+        ros.control(T0 + 0.05 * k, 1.0, 0.0)
+        if k % 4 == 0:
+            ros.cloud(T0 + 0.05 * k, [10.0], [0.0], [1])
+        ros.spin_for(0.02)
+
+    def named():
+        return [s for m in ros.received["diagnostics"] for s in m.status
+                if s.level == DiagnosticStatus.WARN and "/contrl (control_topic, 0 publishers)" in s.message]
+    assert ros.spin_until(lambda: named(), timeout=3.0)
+    message = named()[-1].message
+    assert "nothing received on" in message and "/odom (odom_topic, 1 publisher, optional)" in message
+    log = capfd.readouterr().err
+    assert "nothing received on /contrl (control_topic; 0 publishers)" in log and "/control" in log

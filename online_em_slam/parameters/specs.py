@@ -19,6 +19,7 @@ the parameter and its range.
 """
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING, Any
@@ -259,6 +260,45 @@ def declare_parameters(node) -> None:
             raise ParameterError(f"invalid parameter {spec.name}: {message}") from None
 
 
+# Parameters ROS itself reads on every node (rclpy declares them, or reads them when it creates a
+# publisher or subscription): a parameter file may set them, and they are not unknown.
+ROS_PARAMETERS = ("use_sim_time", "start_type_description_service", "start_parameter_services",
+                  "start_parameter_event_publisher")
+ROS_PARAMETER_PREFIXES = ("qos_overrides.",)
+
+
+def is_ros_parameter(name: str) -> bool:
+    return name in ROS_PARAMETERS or name.startswith(ROS_PARAMETER_PREFIXES)
+
+
+def check_names(names) -> None:
+    """Refuse parameter names that are neither the node's nor ROS's own: one ParameterError for
+    all of them, each with the nearest valid name (a typo such as filter.num_partcles).
+    The node (its start-up overrides) and the offline runner (its parameter files) both apply it."""
+    valid = [spec.name for spec in all_specs()]
+    known = set(valid)
+    unknown = sorted(str(name) for name in names if name not in known and not is_ros_parameter(str(name)))
+    if not unknown:
+        return
+    parts = []
+    for name in unknown:
+        nearest = difflib.get_close_matches(name, valid, n=1, cutoff=0.6)
+        parts.append(f"{name} (did you mean {nearest[0]}?)" if nearest else name)
+    raise ParameterError(f"unknown parameter{'s' if len(unknown) > 1 else ''}: {', '.join(parts)}")
+
+
+def as_declared_type(spec: ParamSpec, value: Any) -> Any:
+    """An integer where the spec is a double (or integers in a double array) as float, as the
+    offline runner reads them; other values unchanged (rclpy then refuses a wrong type)."""
+    if isinstance(spec.default, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if (isinstance(spec.default, list) and not (spec.default and isinstance(spec.default[0], str))
+            and isinstance(value, (list, tuple)) and value
+            and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
+        return [float(v) for v in value]
+    return value
+
+
 def current_values(node) -> dict[str, Any]:
     return {spec.name: node.get_parameter(spec.name).value for spec in all_specs()}
 
@@ -341,7 +381,9 @@ def _core_config(merged: dict[str, Any], settings: NodeSettings) -> SlamConfig:
 
 
 def build(values: dict[str, Any]) -> tuple[SlamConfig, NodeSettings]:
-    """SlamConfig and NodeSettings from flat parameter values; ParameterError names the culprit."""
+    """SlamConfig and NodeSettings from flat parameter values; ParameterError names the culprit
+    (an unknown name too, with the nearest valid one; the names ROS itself reads are let through)."""
+    check_names(values)
     merged = defaults()
     merged.update(values)
     # Node settings first (motion.model depends on them).

@@ -15,6 +15,7 @@ from rclpy.qos import QoSProfile
 from std_msgs.msg import Header
 
 from . import conversions as conv
+from .input_watch import publishers_text
 
 
 class Diagnostics:
@@ -53,6 +54,26 @@ class Diagnostics:
         self.resets += 1
 
     # ------------------------------------------------------------------ publication
+    def _silent_inputs(self, inputs, level, message):
+        """Name every subscribed topic that is silent: heard and stopped (WARN), or never heard
+        (WARN when another input arrives: its topic name is likely wrong)."""
+        node = self.node
+        watch, now, timeout = inputs.watch, time.monotonic(), node.settings.input_delay
+        stale = watch.stale(now, timeout)
+        unheard = watch.unheard(now, timeout)
+        if node.paused:
+            return level, message
+        if stale:
+            level = DiagnosticStatus.WARN
+            message += "; silent inputs: " + ", ".join(f"{name} for {age:.1f} s" for name, age in stale)
+        if unheard:
+            if watch.any_heard() and any(stream.required for stream in unheard):
+                level = DiagnosticStatus.WARN
+            message += "; nothing received on: " + ", ".join(
+                f"{s.topic} ({s.parameter}, {publishers_text(inputs.publishers(s))}{'' if s.required else ', optional'})"
+                for s in unheard)
+        return level, message
+
     def publish(self) -> None:
         node = self.node
         inputs = node.inputs                    # the queue, the load, corrections, frames, silent streams
@@ -97,10 +118,7 @@ class Diagnostics:
                 message += f", {total - self.drops_reported} inputs dropped in the last {span:.1f} s"
             elif self.updates == 0:
                 message = "waiting for observations"
-            stale = inputs.watch.stale(time.monotonic(), node.settings.input_delay)
-            if stale and not node.paused:
-                level = DiagnosticStatus.WARN
-                message += "; silent inputs: " + ", ".join(f"{name} for {age:.1f} s" for name, age in stale)
+            level, message = self._silent_inputs(inputs, level, message)
             self.drops_reported = total
             self.window_start, self.window_updates, self.window_inputs = now, 0, 0
             self.latencies = []

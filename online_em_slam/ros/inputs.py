@@ -30,7 +30,7 @@ from sensor_msgs.msg import PointCloud2
 
 from ..pipeline import CONTROL, KIND_NAME, OBSERVATIONS, ODOMETRY, InputPipeline
 from . import conversions as conv
-from .input_watch import InputWatch
+from .input_watch import InputWatch, Stream, publishers_text
 from .qos import input_qos
 from .tf import SensorFrames
 
@@ -64,6 +64,14 @@ class Inputs:
                                                         qos, event_callbacks=self._events(s.control_topic))
         self.obs_sub = node.create_subscription(PointCloud2, s.observations_topic, self.on_observations,
                                                 qos, event_callbacks=self._events(s.observations_topic))
+        now = time.monotonic()
+        for sub, key, parameter, required in (
+                (self.odom_sub, s.odom_topic, "odom_topic", s.motion_source == "odom"),
+                (self.control_sub, s.control_topic, "control_topic", True),
+                (self.obs_sub, s.observations_topic, "observations_topic", True)):
+            if sub is not None:
+                self.watch.expect(Stream(key, sub.topic_name, parameter, required), now)
+        self._unheard_warned: set[str] = set()
 
     @staticmethod
     def sheds(settings) -> bool:
@@ -212,7 +220,39 @@ class Inputs:
             node.reset(f"clock jumped back to {now:.3f} s", keep_map=True)
 
     def housekeeping(self) -> None:
-        """Periodic: a /clock jump, and a stream that went silent stops holding the others back."""
+        """Periodic: a /clock jump, a stream that went silent stops holding the others back, and a
+        subscribed topic that never delivered while others do is warned about (once)."""
         with self.node.lock:
             self.check_clock_jump()
             self.pipeline.release(time.monotonic())
+            self.warn_unheard(time.monotonic())
+
+    def publishers(self, stream: Stream) -> int:
+        return self.node.count_publishers(stream.topic)
+
+    def warn_unheard(self, now: float) -> None:
+        """One warning per subscribed topic that has delivered nothing while another input has,
+        with its publisher count and the topics of its type that do have publishers."""
+        node = self.node
+        if not self.watch.any_heard():
+            return
+        for stream in self.watch.unheard(now, node.settings.input_delay):
+            if stream.key in self._unheard_warned:
+                continue
+            self._unheard_warned.add(stream.key)
+            others = self._same_type_topics(stream)
+            node.get_logger().warning(
+                f"nothing received on {stream.topic} ({stream.parameter}; {publishers_text(self.publishers(stream))}) "
+                "while other inputs arrive" + (f"; topics of its type with publishers: {', '.join(others)}"
+                                               if others else "")
+                + ("" if stream.required else " (optional: odometry only places map -> odom)"))
+
+    def _same_type_topics(self, stream: Stream) -> list[str]:
+        kinds = {"odom_topic": "nav_msgs/msg/Odometry", "control_topic": "geometry_msgs/msg/TwistStamped",
+                 "observations_topic": "sensor_msgs/msg/PointCloud2"}
+        try:
+            topics = self.node.get_topic_names_and_types()
+        except Exception:       # noqa: BLE001 (a graph query failing must not stop the housekeeping)
+            return []
+        return [name for name, types in topics if kinds[stream.parameter] in types and name != stream.topic
+                and self.node.count_publishers(name) > 0][:3]

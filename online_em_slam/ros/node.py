@@ -36,6 +36,7 @@ from rclpy.clock import Clock, ClockType, JumpThreshold
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_msgs.msg import Header
 
 from ..core.filter.slam import OnlineEMSlam
@@ -43,7 +44,8 @@ from . import conversions as conv
 from .diagnostics import Diagnostics
 from .inputs import Inputs
 from .outputs import Outputs
-from ..parameters.specs import ParameterError, build, current_values, declare_parameters
+from ..parameters.specs import (ParameterError, all_specs, as_declared_type, build, check_names, current_values,
+                                declare_parameters)
 from .qos import input_qos, latched_qos
 from .services import Commands
 
@@ -72,7 +74,13 @@ class OnlineEmSlamNode(Node):
 
     # ------------------------------------------------------------------ set-up steps
     def _declare_parameters(self) -> None:
-        """Declare the parameters and build the core configuration and node settings from them."""
+        """Declare the parameters and build the core configuration and node settings from them.
+
+        The start-up overrides (parameter files, -p, parameter_overrides) are read as
+        ``online-em-slam run`` reads a parameter file: a name that is neither the node's nor
+        ROS's own is refused with the nearest valid name, and an integer is taken for a double.
+        """
+        self._check_overrides()
         declare_parameters(self)
         try:
             self.config, self.settings = build(current_values(self))
@@ -80,6 +88,28 @@ class OnlineEmSlamNode(Node):
             raise ParameterError(f"invalid parameter: {error}") from None
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
+
+    def _check_overrides(self) -> None:
+        # rclpy keeps the overrides addressed to this node (its namespace and /**) here, and has
+        # no public accessor for them; undeclared ones would otherwise be ignored silently.
+        overrides = getattr(self, "_parameter_overrides", None)
+        if isinstance(overrides, dict):
+            check_names(overrides)        # ParameterError: unknown parameter: NAME (did you mean ...?)
+            overrides.update({p.name: p for p in self._coerce_parameters(list(overrides.values()))})
+        # ros2 param set ... 3 for a double, at run time: the same conversion.
+        self.add_pre_set_parameters_callback(self._coerce_parameters)
+
+    @staticmethod
+    def _coerce_parameters(parameters: list[Parameter]) -> list[Parameter]:
+        """An integer for a double parameter becomes a double (as online-em-slam run reads it)."""
+        specs = {spec.name: spec for spec in all_specs()}
+        out = []
+        for parameter in parameters:
+            spec = specs.get(parameter.name)
+            value = parameter.value
+            coerced = as_declared_type(spec, value) if spec is not None else value
+            out.append(parameter if coerced is value else Parameter(parameter.name, value=coerced))
+        return out
 
     def _make_estimator(self) -> None:
         """The estimator and the state the parts share (lock, drop counters, pause)."""
@@ -207,8 +237,8 @@ def main(args=None) -> int:
     try:
         node = OnlineEmSlamNode()
         rclpy.spin(node)
-    except ParameterError as error:
-        rclpy.logging.get_logger("online_em_slam").fatal(str(error))
+    except ParameterError as error:     # one error line and status 1, as online-em-slam run
+        rclpy.logging.get_logger("online_em_slam").error(str(error))
         code = 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
