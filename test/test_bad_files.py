@@ -39,7 +39,7 @@ EXPECTED = {
     "params_not_yaml": ("not a YAML parameter file", None),
     "params_binary": ("not a YAML parameter file", None),
     "params_directory": ("cannot read the parameter file: Is a directory", None),
-    "params_bad_value": ("filter.num_particles = 'many' is not a number", None),
+    "params_bad_value": ("filter.num_particles: expected an integer, got 'many'", None),
 }
 
 
@@ -171,7 +171,7 @@ def test_parameter_error_names_the_file_that_set_it(corpus, tmp_path, capsys):
     assert code == 0, capsys.readouterr().err                 # the later file's value wins
     capsys.readouterr()
     code = cli.main(["run", str(bag), "--params", str(good), "--params", str(bad), "--output", str(tmp_path / "o")])
-    _one_error_line(capsys.readouterr().err, "online-em-slam", bad, "is not a number")
+    _one_error_line(capsys.readouterr().err, "online-em-slam", bad, "expected an integer")
     assert code == 1
 
 

@@ -75,3 +75,15 @@ def test_an_integer_for_a_double_and_ros_own_keys_are_accepted_by_both(tmp_path)
         if node is not None:
             node.destroy_node()
         rclpy.shutdown(context=context)
+
+
+@pytest.mark.parametrize("name, value, expected", [("filter.num_particles", 100.0, "expected an integer"),
+                                                   ("publish_tf", 1, "expected a boolean"),
+                                                   ("motion.model", 3, "expected a string")])
+def test_run_refuses_the_types_the_node_refuses(name, value, expected):
+    """rclpy refuses 100.0 for an integer and 1 for a boolean; the runner did not (it kept
+    num_particles a float). An integer for a double is accepted by both."""
+    with pytest.raises(ParameterError, match=expected):
+        config_from_params({name: value})
+    config, _ = config_from_params({"motion.wheelbase": 3, "filter.num_particles": 50})
+    assert config.motion.wheelbase == 3.0 and config.filter.num_particles == 50

@@ -380,10 +380,30 @@ def _core_config(merged: dict[str, Any], settings: NodeSettings) -> SlamConfig:
         raise ParameterError(str(error)) from None
 
 
+_TYPE_NAMES = {bool: "a boolean", int: "an integer", float: "a double", str: "a string", list: "an array"}
+
+
+def check_types(values: dict[str, Any]) -> None:
+    """Refuse what the node's declared types refuse (an integer is a double; 100.0 is not an
+    integer, 1 not a boolean), so a parameter file means the same to node and runner."""
+    by_name = {spec.name: spec for spec in all_specs()}
+    for name, value in values.items():
+        spec = by_name.get(name)
+        if spec is None or spec.default is None or value is None:
+            continue
+        value = as_declared_type(spec, value)
+        kind = type(spec.default) if not isinstance(spec.default, tuple) else list
+        ok = isinstance(value, (list, tuple)) if kind is list else (
+            type(value) is kind if kind in (bool, int) else isinstance(value, kind) and not isinstance(value, bool))
+        if not ok:
+            raise ParameterError(f"{name}: expected {_TYPE_NAMES.get(kind, kind.__name__)}, got {value!r}")
+
+
 def build(values: dict[str, Any]) -> tuple[SlamConfig, NodeSettings]:
     """SlamConfig and NodeSettings from flat parameter values; ParameterError names the culprit
     (an unknown name too, with the nearest valid one; the names ROS itself reads are let through)."""
     check_names(values)
+    check_types(values)
     merged = defaults()
     merged.update(values)
     # Node settings first (motion.model depends on them).
