@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..models.angles import wrap_angle
+from ..weighted import weighted_pose_covariance, weighted_pose_mean
 
 
 def normalize_log_weights(log_weights: np.ndarray) -> tuple[np.ndarray, float]:
@@ -52,6 +53,5 @@ def sample_gaussians(means: np.ndarray, covariances: np.ndarray, rng: np.random.
 def localised(particles: np.ndarray, weights: np.ndarray, tolerance: float) -> bool:
     """The weighted cloud's position std (largest axis) is at most ``tolerance`` (m)."""
     w = weights / weights.sum()
-    dev = particles[:, :2] - w @ particles[:, :2]
-    cov = (dev * w[:, None]).T @ dev
-    return bool(np.linalg.eigvalsh(0.5 * (cov + cov.T))[-1] <= tolerance ** 2)
+    cov = weighted_pose_covariance(particles, w, weighted_pose_mean(particles, w))[:2, :2]
+    return bool(np.linalg.eigvalsh(cov)[-1] <= tolerance ** 2)

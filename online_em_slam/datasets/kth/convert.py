@@ -343,12 +343,16 @@ class MessageFactory:
         cols = {"x": lm[:, 0], "y": lm[:, 1], "z": np.zeros(len(lm)), "id": np.arange(len(lm), dtype=np.int32)}
         return self._cloud(stamp_ns, FRAME_GPS, cols, GROUND_TRUTH_LANDMARK_FIELDS)
 
-    def control(self, stamp_ns: int, i: int):
-        T, c = self.T, self.s.control
+    def twist(self, stamp_ns: int, linear_x: float, angular_z: float):
+        """A TwistStamped in the base frame: the /control message of every converter."""
+        T = self.T
         return T["geometry_msgs/msg/TwistStamped"](
             header=self.header(stamp_ns, FRAME_BASE),
-            twist=T["geometry_msgs/msg/Twist"](linear=self.Vector3(x=float(c.speed[i]), y=0.0, z=0.0),
-                                               angular=self.Vector3(x=0.0, y=0.0, z=float(c.steering[i]))))
+            twist=T["geometry_msgs/msg/Twist"](linear=self.Vector3(x=float(linear_x), y=0.0, z=0.0),
+                                               angular=self.Vector3(x=0.0, y=0.0, z=float(angular_z))))
+
+    def control(self, stamp_ns: int, i: int):
+        return self.twist(stamp_ns, self.s.control.speed[i], self.s.control.steering[i])
 
     def odom(self, stamp_ns: int, i: int):
         T, o = self.T, self.s.odom

@@ -184,11 +184,7 @@ class MrclamMessageFactory(MessageFactory):
         return self._cloud(stamp_ns, FRAME_MAP, cols, GROUND_TRUTH_LANDMARK_FIELDS)
 
     def control(self, stamp_ns: int, i: int):
-        T, o = self.T, self.s.odom
-        return T["geometry_msgs/msg/TwistStamped"](
-            header=self.header(stamp_ns, FRAME_BASE),
-            twist=T["geometry_msgs/msg/Twist"](linear=self.Vector3(x=float(o.speed[i]), y=0.0, z=0.0),
-                                               angular=self.Vector3(x=0.0, y=0.0, z=float(o.yaw_rate[i]))))
+        return self.twist(stamp_ns, self.s.odom.speed[i], self.s.odom.yaw_rate[i])
 
     def gt_position(self, stamp_ns: int, i: int):
         x, y, _ = self.s.ground_truth_poses[i]
