@@ -53,6 +53,25 @@ def test_initialpose_moves_the_pose_and_keeps_the_map(ros):
     assert ros.spin_until(lambda: node.all_drops().get("initial_pose_wrong_frame", 0) == 1, timeout=5.0)
 
 
+def test_estimator_decisions_leave_diagnostics_ok(ros):
+    """Empty clouds and readings beyond the sensor's range are valid input the estimator decides
+    not to use: counted under decided.*, the status stays OK (ROS-conventions item 3)."""
+    ros.start(diagnostics_period=0.2, input_delay=5.0)          # the inputs stop: not silent yet
+    t = _drive(ros, 20)
+    for k in range(5):
+        ros.odom(T0 + t + 0.05 * k, t + 0.05 * k, 0.0, 0.0)
+        ros.cloud(T0 + t + 0.05 * k, [] if k % 2 else [1e6], [] if k % 2 else [0.0], [] if k % 2 else [1])
+        ros.spin_for(0.02)
+    assert ros.spin_until(lambda: ros.decided().get("empty_cloud", 0) >= 2
+                          and ros.decided().get("observation_out_of_range", 0) >= 3, timeout=5.0), ros.decided()
+    ros.received["diagnostics"].clear()
+    assert ros.spin_until(lambda: len(ros.received["diagnostics"]) >= 2, timeout=3.0)
+    statuses = [s for m in ros.received["diagnostics"] for s in m.status]
+    assert all(s.level == DiagnosticStatus.OK for s in statuses), [s.message for s in statuses]
+    assert ros.diagnostics()["dropped_total"] == "0", ros.drops()
+    assert int(ros.diagnostics()["decided_total"]) >= 5
+
+
 def test_a_stopped_input_turns_diagnostics_to_warn_within_two_seconds(ros):
     ros.start(input_delay=0.5, diagnostics_period=0.2)
     _drive(ros, 30)

@@ -12,6 +12,20 @@ import numpy as np
 #: micrometre is no sensor's, 1e-200 would be infinite information).
 POINT_STD_LIMITS = {"range_std": (1e-6, 100.0), "bearing_std": (1e-6, math.pi)}
 
+#: Counted reasons that are the estimator's decisions about valid input, not input lost,
+#: refused or faulty: a scan that saw nothing, a reading beyond the configured range, an
+#: observation between the association and creation gates, a creation merged or held back,
+#: no creation while relocalising, controls the odometry model does not use.  /diagnostics
+#: reports them as ``decided.*``, apart from the drops that turn its status to WARN.
+DECISIONS = frozenset({"empty_cloud", "observation_out_of_range", "ambiguous_association", "merged_new_landmark",
+                       "new_landmark_limit", "relocalising", "control_ignored_by_odometry_model"})
+
+
+def split_decisions(counts: dict) -> tuple[dict, dict]:
+    """(drops, decisions) of counts by reason (:data:`DECISIONS`)."""
+    return ({k: v for k, v in counts.items() if k not in DECISIONS},
+            {k: v for k, v in counts.items() if k in DECISIONS})
+
 
 @dataclass
 class Observations:

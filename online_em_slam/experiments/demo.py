@@ -148,6 +148,7 @@ class Recording:
     path: object = None                               # last ~/path
     landmarks: object = None                          # last ~/landmarks cloud
     diag: dict = field(default_factory=dict)          # last diagnostics of the node
+    levels: list = field(default_factory=list)        # (level, message) of every status received
     published: dict = field(default_factory=dict)     # by input topic
     replay_wall: float = 0.0
 
@@ -158,12 +159,15 @@ class Recording:
     def received(self) -> int:
         """Inputs the node accounted for: buffered ones and those dropped before the buffer."""
         diag = self.diag
-        return int(diag.get("inputs", 0)) + sum(int(diag.get(f"dropped.{r}", 0)) for r in PRE_BUFFER_DROPS)
+        return int(diag.get("inputs", 0)) + sum(int(diag.get(f"dropped.{r}", diag.get(f"decided.{r}", 0)))
+                                                for r in PRE_BUFFER_DROPS)
 
     def on_diagnostics(self, msg) -> None:
         for status in msg.status:
             if status.name.startswith(f"{NODE_NAME}:"):
                 self.diag = _diag_values(status)
+                self.levels.append((int.from_bytes(status.level, "little") if isinstance(status.level, bytes)
+                                    else int(status.level), status.message))
 
 
 def _subscribe(rec, recording: Recording) -> None:
@@ -273,7 +277,7 @@ def _record_node_run(setup: Setup, out: Path, domain: int, rate: float, timeout:
 
 def _node_drops(recording: Recording) -> tuple[dict, dict]:
     """The node's drop counters, and those of them that mean an input was lost or unused."""
-    drops = {k.split(".", 1)[1]: int(v) for k, v in recording.diag.items() if k.startswith("dropped.")}
+    drops = {k.split(".", 1)[1]: int(v) for k, v in recording.diag.items() if k.startswith(("dropped.", "decided."))}
     return drops, {k: v for k, v in drops.items() if k in INPUT_LOSS_DROPS and v}
 
 
@@ -288,6 +292,10 @@ def _check_inputs(recording: Recording) -> bool:
           f"{drops.get('empty_cloud', 0)}), observation updates {int(diag.get('observation_updates', 0))}, "
           f"resets {int(diag.get('resets', 0))}")
     print(f"      node drop counters: {drops or 'none'}")
+    warned = [message for level, message in recording.levels if level != 0]
+    print(f"      /diagnostics: {len(recording.levels) - len(warned)} of {len(recording.levels)} statuses OK"
+          + (f"; not OK: {warned[0]!r}" + (f" (and {len(warned) - 1} more)" if len(warned) > 1 else "")
+             if warned else ""))
     if got != total or losses or int(diag.get("resets", 0)):
         print(f"      FAIL: inputs lost or unused: published {total}, received {got}, losses {losses}")
         return False

@@ -2,7 +2,9 @@
 
 The statistics are counted over a window that restarts at each publication
 (``diagnostics_period``); the status turns WARN while paused, when inputs were
-dropped since the last publication or when an input stream went silent.
+dropped since the last publication or when an input stream went silent.  The
+estimator's decisions about valid input (core/types.py ``DECISIONS``: empty clouds,
+ambiguous associations, ...) are counted under ``decided.*`` and leave it OK.
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.qos import QoSProfile
 from std_msgs.msg import Header
 
+from ..core.types import split_decisions
 from . import conversions as conv
 from .input_watch import publishers_text
 
@@ -81,7 +84,7 @@ class Diagnostics:
             now = time.monotonic()
             span = max(now - self.window_start, 1e-6)
             latencies = np.asarray(self.latencies) if self.latencies else np.zeros(0)
-            drops = node.all_drops()
+            drops, decided = split_decisions(node.all_drops())
             total = sum(drops.values())
             slam = node.slam
             landmarks = slam.landmarks()
@@ -103,11 +106,13 @@ class Diagnostics:
                 "resets": self.resets,
                 "last_stamp": slam.last_stamp if slam.last_stamp is not None else -1.0,
                 "dropped_total": total,
+                "decided_total": sum(decided.values()),
             }
             learned = slam.learned_noise()              # noise learned online (core/em/noise/)
             if learned["enabled"]:
                 values.update({f"noise_learned.{k}": v for k, v in learned.items() if k not in ("enabled", "learning")})
             values.update({f"dropped.{reason}": count for reason, count in sorted(drops.items())})
+            values.update({f"decided.{reason}": count for reason, count in sorted(decided.items())})
             values.update({f"corrected.{reason}": count for reason, count in sorted(inputs.corrected.items())})
             values.update(inputs.frames.diagnostics())      # unexpected_frame.*, unexpected_child_frame.*
             level, message = DiagnosticStatus.OK, f"{len(landmarks)} landmarks"

@@ -25,6 +25,7 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
 from ..core.models.angles import wrap_angle
+from ..core.types import split_decisions
 from ..pipeline import KIND_NAME
 from . import conversions as conv
 from .path_history import PathHistory
@@ -87,9 +88,10 @@ class Outputs:
         report = fed.report
         if report is None:
             return
-        if report.dropped:
+        dropped, _ = split_decisions(report.dropped)          # decisions are no fault: not warned about
+        if dropped:
             self.node.get_logger().warning("observations dropped by the estimator: "
-                                           + ", ".join(f"{k}={v}" for k, v in sorted(report.dropped.items())),
+                                           + ", ".join(f"{k}={v}" for k, v in sorted(dropped.items())),
                                            throttle_duration_sec=self.node.settings.warn_throttle_period)
         self.diagnostics.updated(report)
         self.map_dirty = True
