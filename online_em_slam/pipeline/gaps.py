@@ -8,7 +8,9 @@ messages were lost upstream, counted as ``<kind>_lost`` (the estimated number
 of missing messages).  The nominal period is learnt from the first steps and
 afterwards only from steps close to it, so sustained loss does not stretch it;
 a stream that is not regular (a detector publishing only when it sees
-something) is never judged.
+something) is never judged.  Lost means never arrived: a message that comes
+after its successors (an executor or a loaded link reorders) and falls into a
+gap already counted is taken off that count.
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ REGULAR = 1.3           # regular: the 90th percentile step is within this facto
 GAP_FACTOR = 1.8        # a step longer than this many periods is a gap
 BAND = 0.3              # steps within +-30 % of the period keep refining it
 REESTIMATE = 16         # the period is re-estimated every this many steps (a median per message is costly)
+OPEN_GAPS = 8           # the latest gaps of a stream a late message may still fill
 
 
 class _Stream:
@@ -34,6 +37,7 @@ class _Stream:
         self.regular: bool | None = None
         self.since = 0
         self.refused = 0                         # messages that came but could not be placed
+        self.open_gaps: deque = deque(maxlen=OPEN_GAPS)   # [start, end, messages counted lost]
 
     def learn(self, step: float) -> None:
         self.steps.append(step)
@@ -62,6 +66,7 @@ class GapDetector:
         A jump is a gap in the stamps, not messages that never arrived."""
         for stream in self._streams.values():
             stream.last, stream.refused = None, 0
+            stream.open_gaps.clear()
 
     def period(self, kind: int) -> float | None:
         stream = self._streams.get(kind)
@@ -78,7 +83,10 @@ class GapDetector:
         if stream is None:
             return 0
         last, stream.last = stream.last, (stamp if stream.last is None else max(stream.last, stamp))
-        if last is None or stamp <= last:
+        if last is None:
+            return 0
+        if stamp <= last:
+            self._arrived_late(kind, stream, stamp)
             return 0
         step, refused, stream.refused = stamp - last, stream.refused, 0
         period = stream.period
@@ -93,4 +101,13 @@ class GapDetector:
         lost = int(round(step / period)) - 1 - refused
         if lost > 0:
             self.drops[f"{KIND_NAME[kind]}_lost"] += lost
+            stream.open_gaps.append([last, stamp, lost])
         return max(lost, 0)
+
+    def _arrived_late(self, kind: int, stream: _Stream, stamp: float) -> None:
+        """A message older than its stream's newest: if it falls into a counted gap, it was not lost."""
+        for gap in stream.open_gaps:
+            if gap[0] < stamp < gap[1] and gap[2] > 0:
+                gap[2] -= 1
+                self.drops[f"{KIND_NAME[kind]}_lost"] -= 1
+                return
