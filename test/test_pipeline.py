@@ -366,3 +366,40 @@ def test_a_forward_time_jump_is_a_gap_not_lost_messages():
     assert path.drops["odometry_lost"] == 0 and path.drops["observations_lost"] == 0, path.drops
     path.push(ODOMETRY, 0.05 * 205 + 1e4, None, 10.3)          # 5 odometry messages missing after the jump
     assert path.drops["odometry_lost"] == 5
+
+
+def test_a_node_behind_its_inputs_keeps_waiting_for_motion_and_sheds_observations():
+    """Reliability, second round, item 2: a node whose callbacks run late (its own queues hold
+    the messages) must not take a stream for silent, or its motion comes out of order; and it
+    sheds observation updates, never motion, until it has caught up."""
+    from online_em_slam.pipeline.load import ArrivalLag
+
+    lag = ArrivalLag(limit=0.25)
+    lag.note(0.30)                          # the link's own delay and clock offset: the baseline
+    lag.note(0.40)
+    assert not lag.behind and lag.excess == pytest.approx(0.10)
+    lag.note(0.80)
+    assert lag.behind and lag.max_excess == pytest.approx(0.50)
+
+    def run(behind: bool):
+        slam = OnlineEMSlam(SlamConfig.from_dict({"motion": {"model": "odometry"},
+                                                  "filter": {"seed": 1, "num_particles": 10}}))
+        pipeline = InputPipeline(slam, "odom", input_delay=1.0, jump_threshold=1.0, shedding=True,
+                                 clock=lambda: 0.0)
+        pipeline.arrived(0.05)
+        pipeline.push(ODOMETRY, 0.0, (0.0, 0.0, 0.0), 0.0)
+        if behind:
+            pipeline.arrived(2.0)
+        for k in range(1, 10):               # observations keep coming; odometry waits in the executor
+            pipeline.push(OBSERVATIONS, 0.1 * k, obs(5.0), 0.3 * k)
+        pipeline.release(3.0)
+        for k in range(1, 10):               # then the odometry arrives, 3 s late
+            pipeline.push(ODOMETRY, 0.1 * k, (0.1 * k, 0.0, 0.0), 3.0 + 0.01 * k)
+        pipeline.flush()
+        return pipeline.drops, slam
+
+    drops, _ = run(behind=False)
+    assert drops["out_of_order"] > 0        # taken for silent: its motion came out of order
+    drops, slam = run(behind=True)
+    assert drops["out_of_order"] == 0 and drops["overload"] > 0, drops
+    assert slam.pose().mean[0] == pytest.approx(0.9, abs=1e-6)       # every motion input used

@@ -23,7 +23,7 @@ from typing import Callable
 from .feeder import Fed, Feeder
 from .input_path import InputPath
 from .inputs import CONTROL, OBSERVATIONS, ODOMETRY, Input
-from .load import LoadMonitor
+from .load import ArrivalLag, LoadMonitor
 from .stamp_guard import Verdict
 
 Applied = Callable[[Input, Fed], None]
@@ -39,9 +39,9 @@ def merged_streams(motion_source: str) -> tuple[int, ...]:
 class InputPipeline:
     """Owns the input path, the feeder and load shedding of one estimator.
 
-    ``shedding``: skip observation updates while the load is above the limit
-    (best-effort inputs that would otherwise overflow; never for lossless
-    inputs).  ``clock``: wall time for the load (seconds, monotonic).
+    ``shedding``: skip observation updates while the load is above the limit or
+    the inputs arrive late (:class:`ArrivalLag`; best-effort inputs that would
+    otherwise overflow; never for lossless inputs).  ``clock``: wall time for the load (seconds, monotonic).
     """
 
     def __init__(self, estimator, motion_source: str, input_delay: float, jump_threshold: float, *,
@@ -53,6 +53,7 @@ class InputPipeline:
                               restart_on_jump_back=restart_on_jump_back)
         self.feeder = Feeder(estimator, motion_source, self.path.drops)
         self.load = LoadMonitor()
+        self.arrival = ArrivalLag()
         self.max_load = 0.0
         self.shedding = shedding
         self.on_applied = on_applied
@@ -112,6 +113,12 @@ class InputPipeline:
         """A periodic stream that is not merged: see :meth:`InputPath.watch`."""
         self.path.watch(kind, stamp)
 
+    def arrived(self, delay: float) -> None:
+        """A message's delay from its publication to its callback (s, wall): while it shows the
+        node behind, a stream that seems silent is still waited for and observations are shed."""
+        self.arrival.note(delay)
+        self.path.sequencer.consumer_behind = self.arrival.behind
+
     def busy(self, end: float, seconds: float) -> None:
         """``seconds`` of input handling that ended at ``end`` (clock time): the load."""
         self.load.add(end, seconds)
@@ -150,5 +157,5 @@ class InputPipeline:
     def _feed(self, item: Input) -> Fed:
         load = self.current_load() if item.kind == OBSERVATIONS else 0.0
         self.max_load = max(self.max_load, load)
-        shed = self.shedding and load > self.load.limit
+        shed = self.shedding and (load > self.load.limit or self.arrival.behind)
         return self.feeder.apply(item, use_observations=not shed)
