@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from online_em_slam.offline.evaluation import (initial_pose_from_gps, interpolate_poses, interpolate_positions,
-                                               landmark_metrics, landmark_pairs_by_id, map_error, map_error_split,
+                                               landmark_metrics, landmark_metrics_by_id, landmark_pairs_by_id, map_error, map_error_split,
                                                rigid_alignment, rigid_fit_2d, sensor_points, timing_metrics,
                                                trajectory_metrics)
 
@@ -195,3 +195,22 @@ def test_pairs_by_id_and_the_landmark_metrics_split():
     assert m.rmse == pytest.approx(0.5) and m.frame_error == pytest.approx(0.5)
     assert m.shape_error == pytest.approx(0.0, abs=1e-7)
     assert math.isnan(landmark_metrics(np.zeros((0, 2)), TRUTH).shape_error)
+
+
+def test_by_id_every_pair_counts_however_far():
+    """Known association: the estimate of id k is scored against surveyed landmark k, so a
+    landmark placed 5 m off adds 5 m to the RMSE (by position it would only be missed), two
+    swapped estimates are both wrong, and an unsurveyed id is spurious."""
+    ids = np.array([20, 21, 22, 23])
+    est = TRUTH + [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [5.0, 0.0]]
+    m = landmark_metrics_by_id(est, ids, TRUTH, ids, gate=1.0)
+    assert m.paired_by == "id" and m.n_matched == 3 and m.n_spurious == 1 and m.missed == [3]
+    assert m.rmse == pytest.approx(np.sqrt(25.0 / 4)) and m.max_error == pytest.approx(5.0)
+    by_position = landmark_metrics(est, TRUTH, gate=1.0)
+    assert by_position.n_matched == 3 and by_position.rmse == pytest.approx(0.0)      # the 5 m hidden
+    swapped = landmark_metrics_by_id(TRUTH, [21, 20, 22, 23], TRUTH, ids, gate=1.0)
+    assert swapped.n_matched == 2 and swapped.rmse == pytest.approx(np.sqrt(2 * 100.0 / 4))
+    extra = landmark_metrics_by_id(np.vstack([TRUTH, [[50.0, 50.0]]]), [20, 21, 22, 23, 99], TRUTH, ids)
+    assert extra.n_matched == 4 and extra.spurious == [99] and extra.rmse == pytest.approx(0.0)
+    rotated = landmark_metrics_by_id(TRUTH @ np.array([[0.0, -1.0], [1.0, 0.0]]), ids, TRUTH, ids, gate=100.0)
+    assert rotated.shape_error == pytest.approx(0.0, abs=1e-7) and rotated.frame_error == pytest.approx(rotated.rmse)

@@ -336,3 +336,32 @@ def test_runner_starts_at_the_first_ground_truth_pose(dataset, tmp_path):
     assert initial.source.startswith("/ground_truth/pose")
     assert initial.pose == pytest.approx(tuple(inputs.gt_poses[0]))
     assert inputs.gt_pose_times[0] <= initial.stamp
+
+
+def test_swapped_survey_labels_are_found_and_corrected(tmp_path):
+    """Subjects 6 and 8 swapped in Landmark_Groundtruth.dat (as 11 and 17 are in Dataset 1):
+    the measurements placed from the ground-truth poses sit on the other entry, so the loader
+    relabels the survey and the converter says so; a correct survey is left as it is."""
+    from online_em_slam.datasets.mrclam.convert import report_lines
+    from online_em_slam.datasets.mrclam.survey import median_placements
+
+    directory = _write_dataset(tmp_path / "swapped")
+    survey = {6: (1.5, 2.0), 7: (-1.0, 3.0), 8: (4.0, -2.5)}
+    t = np.arange(1.0, 9.0, 0.25)
+    gt = np.loadtxt(directory / "Robot1_Groundtruth.dat")
+    rows = []
+    for subject, barcode in ((6, 72), (7, 27), (8, 54)):
+        x, y, yaw = (np.interp(t, gt[:, 0], gt[:, k]) for k in (1, 2, 3))
+        dx, dy = survey[subject][0] - x, survey[subject][1] - y
+        rows += [(ti, barcode, r, b) for ti, r, b in zip(t, np.hypot(dx, dy), np.arctan2(dy, dx) - yaw)]
+    np.savetxt(directory / "Robot1_Measurement.dat", np.array(sorted(rows)), fmt=["%.3f", "%d", "%.6f", "%.6f"])
+    right = load_mrclam(directory, 1)
+    assert right.survey_relabelled == {}
+    placed = median_placements(right)
+    assert all(np.hypot(*(placed[s] - survey[s])) < 1e-3 for s in survey)
+    (directory / "Landmark_Groundtruth.dat").write_text(LANDMARKS.replace("  6 ", "  X ").replace("  8 ", "  6 ")
+                                                         .replace("  X ", "  8 "))
+    run = load_mrclam(directory, 1)
+    assert run.survey_relabelled == {6: 8, 8: 6}
+    assert dict(zip(run.landmark_subjects.tolist(), map(tuple, run.landmark_xy))) == survey
+    assert "subject 6 was listed as 8" in report_lines(run)[-1]

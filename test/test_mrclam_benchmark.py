@@ -94,6 +94,21 @@ def test_resume_reuses_metrics(sweep, capsys):
     assert "reused" in capsys.readouterr().out
 
 
+def test_rescore_scores_existing_maps_by_id(sweep, capsys):
+    out, argv, _ = sweep
+    path = out / "runs" / "1_r1_20s_known" / "online_em" / "seed0" / "metrics.json"
+    before = json.loads(path.read_text())
+    assert before["landmarks"]["paired_by"] == "id"          # known ids: the runner scores by id
+    before["landmarks"] = {"rmse": -1.0}                       # as an older evaluation would have left it
+    path.write_text(json.dumps(before))
+    assert benchmark.main(argv + ["--rescore"]) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert [r["status"] for r in results["runs"]][1:] == ["rescored"] * 3
+    after = json.loads(path.read_text())["landmarks"]
+    assert after["paired_by"] == "id" and after["n_true"] == N_LANDMARKS and after["rmse"] >= 0.0
+    assert len(after["matches"]) == after["n_matched"] >= 10
+
+
 def test_plan_covers_every_method_and_noise(tmp_path):
     (tmp_path / "MRCLAM_Dataset1.tar.xz").write_bytes(b"")
     args = benchmark.build_parser().parse_args(["--data-dir", str(tmp_path), "--output", str(tmp_path / "o"),

@@ -4,6 +4,10 @@
   (Hungarian assignment on Euclidean distances, pairs farther than ``gate`` never
   match); RMSE over the matched pairs, true landmarks left unmatched (missed) and
   estimates left unmatched (spurious, including duplicates of a mapped landmark).
+* :func:`landmark_metrics_by_id`: the same figures when the run was given the
+  landmark ids (known association): each estimate is paired with the surveyed
+  landmark of its id, and the RMSE, shape and frame cover every pair, however far
+  (a landmark placed 5 m off counts 5 m, not as a missed one).
 * :func:`map_error_split` / :func:`map_error`: landmark RMSE split into *shape*
   and *frame* (below).
 * :func:`trajectory_metrics`: position error of an estimated track against
@@ -67,7 +71,7 @@ class LandmarkMetrics:
     n_matched: int
     n_missed: int
     n_spurious: int
-    rmse: float                   # over matched pairs (nan when none matched)
+    rmse: float                   # over matched pairs (by id: every pair; nan when none)
     mean_error: float
     max_error: float
     gate: float
@@ -76,6 +80,7 @@ class LandmarkMetrics:
     matches: list[LandmarkMatch] = field(default_factory=list)
     missed: list[int] = field(default_factory=list)       # indices into the true landmarks
     spurious: list[int] = field(default_factory=list)     # ids of the unmatched estimates
+    paired_by: str = "position"   # position (assignment within the gate) | id (known association)
 
     def to_dict(self) -> dict:
         return _clean(asdict(self))
@@ -120,6 +125,39 @@ def landmark_metrics(estimated, truth, gate: float = DEFAULT_MATCH_GATE, estimat
         gate=float(gate), shape_error=float(shape), frame_error=float(frame), matches=matches,
         missed=[i for i in range(len(tru)) if i not in matched_true],
         spurious=[int(ids[j]) for j in range(len(est)) if j not in matched_est])
+
+
+def landmark_metrics_by_id(estimated, estimated_ids, truth, truth_ids, gate: float = DEFAULT_MATCH_GATE
+                           ) -> LandmarkMetrics:
+    """Estimates (M, 2) with their ids (M,) against the surveyed landmarks (K, 2) with theirs (K,).
+
+    Known association: estimate and surveyed landmark pair by id, so the error of
+    every pair enters the RMSE, shape and frame.  ``matches`` (and ``n_matched``) are
+    the pairs within ``gate``; a pair beyond it, or an estimate whose id is not
+    surveyed, is spurious; a surveyed landmark without an estimate within the gate
+    is missed.
+    """
+    est = np.asarray(estimated, dtype=float).reshape(-1, 2)
+    ids = np.asarray(estimated_ids, dtype=int).reshape(-1)
+    tru = np.asarray(truth, dtype=float).reshape(-1, 2)
+    row_of = {int(i): k for k, i in enumerate(np.asarray(truth_ids, dtype=int).reshape(-1))}
+    if len(ids) != len(est) or len(row_of) != len(tru):
+        raise ValueError(f"{len(ids)} ids for {len(est)} estimates, {len(row_of)} distinct ids for {len(tru)} "
+                         "surveyed landmarks")
+    pairs = [(row_of[int(i)], j) for j, i in enumerate(ids) if int(i) in row_of and np.all(np.isfinite(est[j]))]
+    errors = np.array([np.hypot(*(est[j] - tru[r])) for r, j in pairs])
+    matches = sorted((LandmarkMatch(r, j, int(ids[j]), float(e)) for (r, j), e in zip(pairs, errors) if e <= gate),
+                     key=lambda m: m.true_index)
+    rmse, shape, frame = map_error_split(est[[j for _, j in pairs]], tru[[r for r, _ in pairs]])
+    matched_true, matched_est = {m.true_index for m in matches}, {m.estimate_index for m in matches}
+    return LandmarkMetrics(
+        n_true=len(tru), n_estimated=len(est), n_matched=len(matches), n_missed=len(tru) - len(matches),
+        n_spurious=len(est) - len(matches), rmse=float(rmse),
+        mean_error=float(errors.mean()) if errors.size else math.nan,
+        max_error=float(errors.max()) if errors.size else math.nan,
+        gate=float(gate), shape_error=float(shape), frame_error=float(frame), matches=matches,
+        missed=[i for i in range(len(tru)) if i not in matched_true],
+        spurious=[int(ids[j]) for j in range(len(est)) if j not in matched_est], paired_by="id")
 
 
 # --------------------------------------------------------------------------- map shape and frame

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.config import SlamConfig
-from .evaluation import DEFAULT_MATCH_GATE, landmark_metrics, sensor_points, timing_metrics, trajectory_metrics
+from .evaluation import (DEFAULT_MATCH_GATE, landmark_metrics, landmark_metrics_by_id, sensor_points, timing_metrics,
+                         trajectory_metrics)
 
 TRAJECTORY_HEADER = ("t", "x", "y", "yaw")
 LANDMARK_HEADER = ("id", "x", "y", "cov_xx", "cov_xy", "cov_yy", "n_obs")
@@ -32,8 +33,8 @@ def evaluate(result, inputs, config: SlamConfig, match_gate: float = DEFAULT_MAT
         "runner_skipped": result.skipped,
     }
     if inputs.landmarks is not None:
-        lmm = landmark_metrics(np.asarray(lm.positions)[confirmed], inputs.landmarks, gate=match_gate,
-                               estimated_ids=np.asarray(lm.ids)[confirmed])
+        lmm = scored_landmarks(np.asarray(lm.positions)[confirmed], np.asarray(lm.ids)[confirmed], inputs,
+                               match_gate, by_id=result.known_ids)
         metrics["landmarks"] = lmm.to_dict()
         metrics["landmarks"]["evaluated"] = "confirmed (n_obs >= association.confirm_observations)"
     if inputs.has_gps and len(result.trajectory):
@@ -43,6 +44,14 @@ def evaluate(result, inputs, config: SlamConfig, match_gate: float = DEFAULT_MAT
         metrics["trajectory"] = tm.to_dict()
         metrics["trajectory"]["compared_point"] = "sensor point (pose + R(yaw) sensor offset) vs GPS"
     return metrics
+
+
+def scored_landmarks(positions, ids, inputs, match_gate: float, by_id: bool):
+    """Landmark metrics of a map: paired by id when the run was given the ids (known association)
+    and the survey names its landmarks, else by position within ``match_gate``."""
+    if by_id and inputs.landmark_ids is not None:
+        return landmark_metrics_by_id(positions, ids, inputs.landmarks, inputs.landmark_ids, match_gate)
+    return landmark_metrics(positions, inputs.landmarks, gate=match_gate, estimated_ids=ids)
 
 
 # --------------------------------------------------------------------------- files

@@ -296,6 +296,7 @@ class RunResult:
     drops: dict
     skipped: dict
     n_observation_messages: int
+    known_ids: bool = False               # some observation carried a landmark id (known association)
 
 
 def feed(estimator, inputs: BagInputs) -> RunResult:
@@ -321,13 +322,14 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
     pipeline = InputPipeline(estimator, inputs.motion_source, inputs.input_delay, inputs.jump_threshold,
                              restart_on_jump_back=False, on_applied=record)
     first = last = None
-    n_obs_msgs, busy = 0, 0.0
+    n_obs_msgs, busy, known_ids = 0, 0.0, False
     bar = Progress(len(inputs.events), "run", enabled=sys.stderr.isatty())   # a terminal only, not logs
     for kind, stamp, payload, log_time in inputs.events.stream(refused):
         bar.update()
         first = stamp if first is None or stamp < first else first
         last = stamp if last is None or stamp > last else last
         n_obs_msgs += kind == OBSERVATIONS
+        known_ids = known_ids or (kind == OBSERVATIONS and bool(np.any(payload.ids >= 0)))
         started = time.perf_counter()
         pipeline.push(kind, stamp, payload, log_time)
         busy += time.perf_counter() - started
@@ -339,7 +341,8 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
     skipped = {k: int(v) for k, v in pipeline.drops.items() if v}
     skipped.update({k: int(v) for k, v in refused.items() if v})
     return RunResult("", np.asarray(rows, dtype=float).reshape(-1, 4), estimator.landmarks(), durations, busy,
-                     (last - first) if first is not None else 0.0, dict(estimator.drops), skipped, n_obs_msgs)
+                     (last - first) if first is not None else 0.0, dict(estimator.drops), skipped, n_obs_msgs,
+                     known_ids)
 
 
 def run_one(inputs: BagInputs, config: SlamConfig, method: str, initial: InitialPose, output: Path,

@@ -254,6 +254,10 @@ def report_lines(run: MrclamRun) -> list[str]:
     if any(run.retimed.values()):
         lines.append("times rebuilt on the 50 Hz grid (file rounds them to 5 significant digits): "
                      + ", ".join(f"{k} {v}" for k, v in run.retimed.items()))
+    if run.survey_relabelled:
+        lines.append("survey labels corrected (the measurements placed from the ground truth sit on the other "
+                     "entry): " + ", ".join(f"subject {s} was listed as {e}" for s, e in
+                                            sorted(run.survey_relabelled.items())))
     return lines
 
 

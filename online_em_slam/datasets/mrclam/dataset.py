@@ -26,6 +26,10 @@ Messy input handled here:
   times in Dataset 9), ``after_odometry``, ``unknown_barcode`` (not in Barcodes.dat: a
   misread), ``other_robot`` (a barcode of subject 1-5: never a landmark),
   ``bad_range`` (non-finite or <= 0), ``bad_bearing`` (non-finite).
+* Survey label errors: the surveyed landmarks' labels are checked against the
+  measurements placed from the ground-truth poses and corrected where two entries are
+  swapped (Dataset 1: subjects 11 and 17); ``MrclamRun.survey_relabelled``
+  (:mod:`online_em_slam.datasets.mrclam.survey`).
 * ``seconds``: only the first S seconds from the first odometry sample are kept of
   every stream; the rows cut are counted in ``MrclamRun.truncated`` (ground-truth rows
   outside the odometry's time span too), not as drops.
@@ -37,10 +41,12 @@ import math
 import tarfile
 import warnings
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+
+from .survey import relabelled_survey, survey_relabelling
 
 ROBOTS = (1, 2, 3, 4, 5)
 #: Odometry and ground truth are sampled at 50 Hz.
@@ -81,6 +87,7 @@ class MrclamRun:
     truncated: Counter = field(default_factory=Counter)
     retimed: Counter = field(default_factory=Counter)
     seconds: float | None = None
+    survey_relabelled: dict = field(default_factory=dict)   # {subject: survey entry it was listed under}
 
     @property
     def n_measurements(self) -> int:
@@ -290,6 +297,11 @@ def load_mrclam(data_dir, robot: int, seconds: float | None = None) -> MrclamRun
     _ground_truth(parse_table(files["ground_truth"], texts[files["ground_truth"]], 4), files["ground_truth"], run)
     _measurements(parse_table(files["measurement"], texts[files["measurement"]], 4), files["measurement"], table,
                   seconds, run)
-    return MrclamRun(robot=int(robot), source=source,
-                     landmark_subjects=_require_integers(LANDMARKS, landmarks[:, 0]),
-                     landmark_xy=landmarks[:, 1:3].copy(), seconds=seconds, **run)
+    loaded = MrclamRun(robot=int(robot), source=source,
+                       landmark_subjects=_require_integers(LANDMARKS, landmarks[:, 0]),
+                       landmark_xy=landmarks[:, 1:3].copy(), seconds=seconds, **run)
+    moves = survey_relabelling(loaded)
+    if not moves:
+        return loaded
+    return replace(loaded, landmark_subjects=relabelled_survey(loaded.landmark_subjects, moves),
+                   survey_relabelled=moves)

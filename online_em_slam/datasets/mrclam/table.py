@@ -2,7 +2,8 @@
 
 A *cell* is one method with one noise setting on one run (dataset, robot, seconds, ids),
 summarised over its seeds: landmark RMSE after the rigid fit (shape) and in the
-ground-truth frame, mean ± standard error; landmarks within 1 m, the minimum; spurious
+ground-truth frame, mean ± standard error (known ids: over every landmark, paired by id);
+landmarks within 1 m, the minimum; spurious
 landmarks, the maximum; trajectory RMSE; wall time.  A baseline shows the better of its
 two noise settings: more landmarks within 1 m (worst seed), then the lower mean shape RMSE.
 """
@@ -12,13 +13,17 @@ import math
 
 import numpy as np
 
+#: Statuses of a work item whose result is there (run now, reused, or its map scored again).
+DONE = ("ok", "reused", "rescored")
 METHODS = ("online_em", "online_em_complete", "ekf_slam", "fastslam2", "marginal_slam", "batch")
 BASELINES = ("ekf_slam", "fastslam2", "marginal_slam")
 TWO_NOISE = BASELINES + ("batch",)                  # run with the params' noise and with the learned one
 
 NOISE_TAG = {"params": "P", "learned": "L"}
 LEGEND = ("Cells: landmark RMSE after the best rigid 2-D fit (shape, m), mean ± standard error over seeds · "
-          "landmarks within 1 m (worst seed) / surveyed · spurious landmarks (worst seed). "
+          "landmarks within 1 m in the ground-truth frame (worst seed) / surveyed · spurious landmarks (worst "
+          "seed). Known ids: every estimate paired with the surveyed landmark of its id, so every landmark's "
+          "error counts; unknown ids: paired by position within 1 m. "
           "Baselines and batch: the better of their two noise settings (more landmarks within 1 m, then lower "
           "shape RMSE), tagged (P) params file noise or (L) the noise online EM learned on that run and seed "
           "(batch and EKF-SLAM: the first seed's). n/a: not run, failed or unavailable.")
@@ -41,7 +46,7 @@ def cells(records: list[dict]) -> dict[tuple, dict]:
     """(seconds, ids, dataset, robot, method, noise) -> the cell over the successful seeds."""
     groups: dict[tuple, list[dict]] = {}
     for r in records:
-        if r["kind"] != "convert" and r["status"] in ("ok", "reused"):
+        if r["kind"] != "convert" and r["status"] in DONE:
             key = (r["seconds"], r["ids"], r["dataset"], r["robot"], r["method"], r["noise"])
             groups.setdefault(key, []).append(r)
     out = {}
@@ -186,7 +191,7 @@ def checks(table: dict, runs: list[tuple], methods: list[str]) -> list[str]:
 
 
 def failures(records: list[dict]) -> list[str]:
-    bad = [r for r in records if r["status"] not in ("ok", "reused")]
+    bad = [r for r in records if r["status"] not in DONE]
     if not bad:
         return []
     lines = ["## Work items without a result", ""]
