@@ -441,10 +441,11 @@ def test_node_diagnostics_show_the_learned_values():
                          **{**model, "filter.num_particles": 30, "initial_pose.x": float(initial[0]),
                             "initial_pose.y": float(initial[1]), "initial_pose.yaw": float(initial[2]),
                             "noise_learning.enabled": True, "noise_learning.warmup_observations": 20})
-        for control_stamp, control, stamp, ranges, bearings, ids in steps:
+        for control_stamp, control, stamp, ranges, bearings, ids in steps:   # paced: a burst would be shed
             ros.control(control_stamp, *control)
             if len(ranges):
                 ros.cloud(stamp, ranges, bearings, ids)
+            ros.spin_for(0.002)
         assert ros.spin_until(lambda: node.slam.last_stamp == pytest.approx(steps[-1][2]), 20.0)
         in_use = "noise_learned.observation_noise_in_use"
         assert ros.spin_until(lambda: ros.diagnostics().get(in_use) == "True", 5.0)

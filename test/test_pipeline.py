@@ -375,11 +375,12 @@ def test_a_node_behind_its_inputs_keeps_waiting_for_motion_and_sheds_observation
     from online_em_slam.pipeline.load import ArrivalLag
 
     lag = ArrivalLag(limit=0.25)
-    lag.note(0.30)                          # the link's own delay and clock offset: the baseline
-    lag.note(0.40)
-    assert not lag.behind and lag.excess == pytest.approx(0.10)
-    lag.note(0.80)
-    assert lag.behind and lag.max_excess == pytest.approx(0.50)
+    lag.note(0.30, 0.0)                     # the link's own delay and clock offset: the baseline
+    lag.note(0.40, 0.1)
+    assert not lag.behind(0.1) and lag.excess == pytest.approx(0.10)
+    lag.note(0.80, 0.2)
+    assert lag.behind(0.2) and lag.max_excess == pytest.approx(0.50)
+    assert not lag.behind(0.5)              # nothing more came: the node's queues are empty
 
     def run(behind: bool):
         slam = OnlineEMSlam(SlamConfig.from_dict({"motion": {"model": "odometry"},

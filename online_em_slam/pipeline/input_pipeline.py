@@ -31,6 +31,13 @@ Settled = Callable[[bool, bool], None]
 Jumped = Callable[[Verdict, bool], None]
 
 
+#: The node is behind once its inputs reach it this share of ``input_delay`` later than usual: a
+#: stream waiting in its queues is then not taken for silent; scans are shed once the lag reaches
+#: SHED_SHARE of it (a burst the node drains in a moment is not shed).
+BEHIND_SHARE = 0.5
+SHED_SHARE = 1.0
+
+
 def merged_streams(motion_source: str) -> tuple[int, ...]:
     """The input streams that are merged: the motion input that drives the estimator and the observations."""
     return (ODOMETRY if motion_source == "odom" else CONTROL, OBSERVATIONS)
@@ -53,7 +60,7 @@ class InputPipeline:
                               restart_on_jump_back=restart_on_jump_back)
         self.feeder = Feeder(estimator, motion_source, self.path.drops)
         self.load = LoadMonitor()
-        self.arrival = ArrivalLag()
+        self.arrival = ArrivalLag(BEHIND_SHARE * input_delay)
         self.max_load = 0.0
         self.shedding = shedding
         self.on_applied = on_applied
@@ -85,6 +92,7 @@ class InputPipeline:
     def set_input_delay(self, seconds: float) -> None:
         """How long the merge waits for a silent stream (the node's ``input_delay``, changed at run time)."""
         self.path.sequencer.silence = float(seconds)
+        self.arrival.limit = BEHIND_SHARE * float(seconds)
 
     # ------------------------------------------------------------------ inputs
     def push(self, kind: int, stamp: float, payload, wall: float) -> None:
@@ -100,6 +108,7 @@ class InputPipeline:
 
     def release(self, wall: float) -> None:
         """Apply the inputs that became safe because a stream went silent (call periodically)."""
+        self._judge_behind()
         self._apply(self.path.release(wall))
 
     def flush(self) -> None:
@@ -116,8 +125,17 @@ class InputPipeline:
     def arrived(self, delay: float) -> None:
         """A message's delay from its publication to its callback (s, wall): while it shows the
         node behind, a stream that seems silent is still waited for and observations are shed."""
-        self.arrival.note(delay)
-        self.path.sequencer.consumer_behind = self.arrival.behind
+        self.arrival.note(delay, self.clock())
+        self._judge_behind()
+
+    def _lagging(self) -> bool:
+        """Behind by SHED_SHARE of input_delay: shed scans until caught up."""
+        return self._judge_behind() and self.arrival.excess > SHED_SHARE / BEHIND_SHARE * self.arrival.limit
+
+    def _judge_behind(self) -> bool:
+        behind = self.arrival.behind(self.clock())
+        self.path.sequencer.consumer_behind = behind
+        return behind
 
     def busy(self, end: float, seconds: float) -> None:
         """``seconds`` of input handling that ended at ``end`` (clock time): the load."""
@@ -157,5 +175,5 @@ class InputPipeline:
     def _feed(self, item: Input) -> Fed:
         load = self.current_load() if item.kind == OBSERVATIONS else 0.0
         self.max_load = max(self.max_load, load)
-        shed = self.shedding and (load > self.load.limit or self.arrival.behind)
+        shed = self.shedding and (load > self.load.limit or self._lagging())
         return self.feeder.apply(item, use_observations=not shed)

@@ -102,7 +102,8 @@ class Diagnostics:
                 "queued_inputs": len(inputs.pipeline),
                 "load": inputs.pipeline.current_load(now),
                 "load_max": inputs.pipeline.max_load,
-                "behind_s": inputs.pipeline.arrival.excess,          # publication to callback, beyond the link's
+                "behind_s": (inputs.pipeline.arrival.excess       # publication to callback, beyond the link's
+                             if inputs.pipeline.arrival.behind(now) else 0.0),
                 "behind_max_s": inputs.pipeline.arrival.max_excess,
                 "paused": node.paused,
                 "resets": self.resets,
