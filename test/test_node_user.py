@@ -1,6 +1,5 @@
 """What a ROS user reaches for first (issue 11), live: /initialpose relocalises the
 robot and keeps the map; a stopped input turns /diagnostics to WARN within 2 s."""
-import math
 import os
 import time
 
@@ -57,7 +56,7 @@ def test_initialpose_moves_the_pose_and_keeps_the_map(ros):
 def test_estimator_decisions_leave_diagnostics_ok(ros):
     """Empty clouds and readings beyond the sensor's range are valid input the estimator decides
     not to use: counted under decided.*, the status stays OK (ROS-conventions item 3)."""
-    node = ros.start(diagnostics_period=0.2, input_delay=5.0)   # the inputs stop: not silent yet
+    ros.start(diagnostics_period=0.2, input_delay=5.0)          # the inputs stop: not silent yet
     t = _drive(ros, 20)
     for k in range(5):
         ros.odom(T0 + t + 0.05 * k, t + 0.05 * k, 0.0, 0.0)
@@ -71,8 +70,6 @@ def test_estimator_decisions_leave_diagnostics_ok(ros):
     assert all(s.level == DiagnosticStatus.OK for s in statuses), [s.message for s in statuses]
     assert ros.diagnostics()["dropped_total"] == "0", ros.drops()
     assert int(ros.diagnostics()["decided_total"]) >= 5
-    # The middleware's publication stamps reach the callbacks: the node knows how far behind it is.
-    assert math.isfinite(node.inputs.pipeline.arrival.baseline) and float(ros.diagnostics()["behind_s"]) < 0.25
 
 
 def test_a_stopped_input_turns_diagnostics_to_warn_within_two_seconds(ros):

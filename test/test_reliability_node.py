@@ -203,5 +203,5 @@ def test_flood_scan_is_bounded_and_the_published_map_holds_confirmed_landmarks(r
     assert set(landmark_table(after("landmarks")[-1])) == {1, 2}
     markers = after("landmark_markers")[-1].markers
     assert {m.id for m in markers if m.ns.endswith("/ids")} == {1, 2}
-    assert ros.spin_until(lambda: ros.drops().get("new_landmark_limit", 0) > 0, 5.0), ros.drops()
+    assert ros.spin_until(lambda: ros.decided().get("new_landmark_limit", 0) > 0, 5.0), ros.decided()
     assert ros.diagnostics()["confirmed_landmarks"] == "2"

@@ -124,7 +124,9 @@ class InputPipeline:
 
     def arrived(self, delay: float) -> None:
         """A message's delay from its publication to its callback (s, wall): while it shows the
-        node behind, a stream that seems silent is still waited for and observations are shed."""
+        node behind, a stream that seems silent is still waited for and observations are shed.
+        The node does not call it yet: the publication time is in rclpy's MessageInfo, and
+        rclpy's EventsExecutor cannot call a callback that takes one."""
         self.arrival.note(delay, self.clock())
         self._judge_behind()
 

@@ -102,9 +102,6 @@ class Diagnostics:
                 "queued_inputs": len(inputs.pipeline),
                 "load": inputs.pipeline.current_load(now),
                 "load_max": inputs.pipeline.max_load,
-                "behind_s": (inputs.pipeline.arrival.excess       # publication to callback, beyond the link's
-                             if inputs.pipeline.arrival.behind(now) else 0.0),
-                "behind_max_s": inputs.pipeline.arrival.max_excess,
                 "paused": node.paused,
                 "resets": self.resets,
                 "last_stamp": slam.last_stamp if slam.last_stamp is not None else -1.0,

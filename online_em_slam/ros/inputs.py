@@ -99,10 +99,9 @@ class Inputs:
         return SubscriptionEventCallbacks(incompatible_qos=incompatible, message_lost=lost)
 
     # ------------------------------------------------------------------ callbacks
-    def on_odom(self, msg: Odometry, info) -> None:
+    def on_odom(self, msg: Odometry) -> None:
         node = self.node
         started = time.monotonic()
-        self._arrived(info)
         self.watch.heard(node.settings.odom_topic, started)
         stamp = conv.stamp_to_sec(msg.header.stamp)
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
@@ -142,10 +141,9 @@ class Inputs:
                 self.outputs.publish_odometry_pose(stamp, pose)
             self.pipeline.busy(time.monotonic(), time.monotonic() - started)
 
-    def on_control(self, msg: TwistStamped, info) -> None:
+    def on_control(self, msg: TwistStamped) -> None:
         node = self.node
         started = time.monotonic()
-        self._arrived(info)
         self.watch.heard(node.settings.control_topic, started)
         control = np.array([msg.twist.linear.x, msg.twist.angular.z], dtype=float)
         stamp = conv.stamp_to_sec(msg.header.stamp)
@@ -159,10 +157,9 @@ class Inputs:
             self._input(CONTROL, stamp, control, started)
             self.pipeline.busy(time.monotonic(), time.monotonic() - started)
 
-    def on_observations(self, msg: PointCloud2, info) -> None:
+    def on_observations(self, msg: PointCloud2) -> None:
         node = self.node
         started = time.monotonic()
-        self._arrived(info)
         self.watch.heard(node.settings.observations_topic, started)
         stamp = conv.stamp_to_sec(msg.header.stamp)
         with node.lock:
@@ -179,14 +176,6 @@ class Inputs:
             # An empty cloud goes through the merge too: it says "nothing seen up to here".
             self._input(OBSERVATIONS, stamp, observations, started)
             self.pipeline.busy(time.monotonic(), time.monotonic() - started)
-
-    def _arrived(self, info) -> None:
-        """The message's delay from publication (the middleware's source timestamp) to now: how
-        far behind the node is (pipeline ArrivalLag)."""
-        published = (info or {}).get("source_timestamp") or 0
-        if published > 0:
-            with self.node.lock:
-                self.pipeline.arrived(time.time() - 1e-9 * published)
 
     def _refuse(self, kind: int, stamp: float, reason: str, what: str, started: float) -> None:
         """An input whose payload is unusable: counted, and its stamp still advances its stream."""
