@@ -1,6 +1,7 @@
 """What a ROS user reaches for first (issue 11), live: /initialpose relocalises the
 robot and keeps the map; a stopped input turns /diagnostics to WARN within 2 s."""
 import os
+import re
 import time
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "OFF"
@@ -87,6 +88,20 @@ def test_a_stopped_input_turns_diagnostics_to_warn_within_two_seconds(ros):
     assert ros.spin_until(lambda: any("odom for" in w for w in warnings()), timeout=2.0)
     assert time.monotonic() - stopped < 2.0
     assert all("silent inputs" in w for w in warnings())
+
+
+def test_inputs_that_stop_for_input_timeout_turn_diagnostics_to_error(ros):
+    """ROS-conventions item 3: silent for input_delay is WARN, for input_timeout ERROR."""
+    ros.start(input_delay=0.3, input_timeout=1.0, diagnostics_period=0.2)
+    _drive(ros, 20)
+    ros.received["diagnostics"].clear()
+
+    def levels():
+        return [(s.level, s.message) for m in ros.received["diagnostics"] for s in m.status]
+    assert ros.spin_until(lambda: any(level == DiagnosticStatus.ERROR for level, _ in levels()), timeout=3.0)
+    error = next(message for level, message in levels() if level == DiagnosticStatus.ERROR)
+    assert re.search(r"no input for \d+ s", error) and "silent inputs" in error
+    assert any(level == DiagnosticStatus.WARN for level, _ in levels())      # before the timeout
 
 
 def test_a_subscribed_topic_that_never_delivers_is_named(ros, capfd):

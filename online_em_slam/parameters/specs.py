@@ -84,6 +84,8 @@ NODE_SPECS = (
     ParamSpec("map_publish_period", 1.0, "Landmark map, markers and path publish period (s, > 0).",
               0.001, 3600.0, read_only=True),
     ParamSpec("diagnostics_period", 1.0, "Period of /diagnostics (s, > 0).", 0.01, 3600.0, read_only=True),
+    ParamSpec("input_timeout", 10.0, "/diagnostics turns ERROR when inputs flowed and then every subscribed "
+              "input has been silent this long (s; 0: never).", 0.0, 86400.0),
     ParamSpec("path_max_length", 10000, "Poses kept for ~/path (0: no path); 32 bytes each.", 0, 1000000),
     ParamSpec("path_publish_max_poses", 1000, "~/path holds at most this many of the kept poses (evenly "
               "spaced, always the newest): bounds the cost of a publish (about 20 ms per 1000 poses).",
@@ -143,6 +145,7 @@ class NodeSettings:
     transform_timeout: float = 0.2
     map_publish_period: float = 1.0
     diagnostics_period: float = 1.0
+    input_timeout: float = 10.0
     path_max_length: int = 10000
     path_publish_max_poses: int = 1000
     publish_particles: bool = True

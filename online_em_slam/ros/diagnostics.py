@@ -2,7 +2,8 @@
 
 The statistics are counted over a window that restarts at each publication
 (``diagnostics_period``); the status turns WARN while paused, when inputs were
-dropped since the last publication or when an input stream went silent.  The
+dropped since the last publication or when an input stream went silent, and ERROR
+when inputs flowed and then every one has been silent for ``input_timeout``.  The
 estimator's decisions about valid input (core/types.py ``DECISIONS``: empty clouds,
 ambiguous associations, ...) are counted under ``decided.*`` and leave it OK.
 """
@@ -66,12 +67,16 @@ class Diagnostics:
         unheard = watch.unheard(now, timeout)
         if node.paused:
             return level, message
+        silent_for = watch.all_silent_for(now)
+        if 0.0 < node.settings.input_timeout < silent_for:
+            level = DiagnosticStatus.ERROR
+            message += f"; no input for {silent_for:.0f} s"
         if stale:
-            level = DiagnosticStatus.WARN
+            level = max(level, DiagnosticStatus.WARN)
             message += "; silent inputs: " + ", ".join(f"{name} for {age:.1f} s" for name, age in stale)
         if unheard:
             if watch.any_heard() and any(stream.required for stream in unheard):
-                level = DiagnosticStatus.WARN
+                level = max(level, DiagnosticStatus.WARN)
             message += "; nothing received on: " + ", ".join(
                 f"{s.topic} ({s.parameter}, {publishers_text(inputs.publishers(s))}{'' if s.required else ', optional'})"
                 for s in unheard)

@@ -57,6 +57,10 @@ class InputWatch:
     def any_heard(self) -> bool:
         return bool(self._last)
 
+    def all_silent_for(self, now: float) -> float:
+        """Seconds since the last message of any stream (0 while none was heard)."""
+        return now - max(self._last.values()) if self._last else 0.0
+
     def clear(self, now: float | None = None) -> None:
         """Forget what was heard (the subscriptions stay expected, silent from ``now``)."""
         self._last.clear()
