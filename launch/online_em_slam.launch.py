@@ -3,6 +3,9 @@
     ros2 launch online_em_slam online_em_slam.launch.py
     ros2 launch online_em_slam online_em_slam.launch.py use_sim_time:=true \
         params_file:=/path/to/my.yaml namespace:=robot1
+    # A managed node: nav2's lifecycle manager configures and activates it (autostart), or
+    # nothing does until `ros2 lifecycle set /online_em_slam configure` (autostart:=false).
+    ros2 launch online_em_slam online_em_slam.launch.py use_lifecycle_manager:=true
     # A converted KTH bag (online-em-slam-convert car_park car_park_bag), RViz and the node
     # on sim time: `ros2 bag play --clock` starts after bag_delay seconds.
     ros2 launch online_em_slam online_em_slam.launch.py rviz:=true bag:=$PWD/car_park_bag \
@@ -31,6 +34,13 @@ def _arguments(share):
         DeclareLaunchArgument("params_file", default_value=os.path.join(share, "config", "online_em_slam.yaml"),
                               description="Parameter YAML (/** + ros__parameters)."),
         DeclareLaunchArgument("namespace", default_value="", description="Node namespace."),
+        DeclareLaunchArgument("autostart", default_value="true",
+                              description="Configure and activate the lifecycle node at start."),
+        DeclareLaunchArgument("use_lifecycle_manager", default_value="false",
+                              description="nav2_lifecycle_manager drives the node (with autostart) instead "
+                                          "of the node itself."),
+        DeclareLaunchArgument("use_respawn", default_value="false",
+                              description="Restart the node if it exits (2 s later)."),
         DeclareLaunchArgument("log_level", default_value="info", description="Logging level."),
         DeclareLaunchArgument("rviz", default_value="false", description="Start RViz with rviz_config."),
         DeclareLaunchArgument("rviz_config", default_value=os.path.join(share, "rviz", "online_em_slam.rviz"),
@@ -51,11 +61,24 @@ def generate_launch_description():
     sim_time = ParameterValue(
         PythonExpression(["'", LaunchConfiguration("use_sim_time"), "'.lower() == 'true' or ", has_bag]),
         value_type=bool)
+    autostart, managed = LaunchConfiguration("autostart"), LaunchConfiguration("use_lifecycle_manager")
+    # The node starts itself only when no lifecycle manager is asked to.
+    self_start = ParameterValue(
+        PythonExpression(["'", autostart, "'.lower() == 'true' and '", managed, "'.lower() != 'true'"]),
+        value_type=bool)
     slam = Node(
         package="online_em_slam", executable="online_em_slam_node", name="online_em_slam",
         namespace=LaunchConfiguration("namespace"), output="screen", emulate_tty=True,
-        parameters=[LaunchConfiguration("params_file"), {"use_sim_time": sim_time}],
+        parameters=[LaunchConfiguration("params_file"), {"use_sim_time": sim_time, "autostart": self_start}],
+        respawn=PythonExpression(["'", LaunchConfiguration("use_respawn"), "'.lower() == 'true'"]), respawn_delay=2.0,
         arguments=["--ros-args", "--log-level", LaunchConfiguration("log_level")])
+    manager = Node(
+        package="nav2_lifecycle_manager", executable="lifecycle_manager", name="lifecycle_manager_slam",
+        namespace=LaunchConfiguration("namespace"), output="screen",
+        parameters=[{"use_sim_time": sim_time, "node_names": ["online_em_slam"],
+                     "autostart": ParameterValue(PythonExpression(["'", autostart, "'.lower() == 'true'"]),
+                                                 value_type=bool)}],
+        condition=IfCondition(managed))
     rviz = Node(
         package="rviz2", executable="rviz2", name="rviz2", output="log",
         arguments=["-d", LaunchConfiguration("rviz_config")], parameters=[{"use_sim_time": sim_time}],
@@ -63,4 +86,4 @@ def generate_launch_description():
     play = TimerAction(period=LaunchConfiguration("bag_delay"), actions=[ExecuteProcess(
         cmd=["ros2", "bag", "play", bag, "--clock", "--rate", LaunchConfiguration("bag_rate")],
         output="screen", condition=IfCondition(has_bag))])
-    return LaunchDescription(_arguments(share) + [slam, rviz, play])
+    return LaunchDescription(_arguments(share) + [slam, manager, rviz, play])

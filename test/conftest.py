@@ -11,7 +11,7 @@ import pytest  # noqa: E402
 # Tests that run live nodes against the wall clock (in this process or in others).  `make test`
 # runs them on their own after the others, which it runs on two workers: a live node's timing
 # tolerances hold on a machine that is not also filtering in another process.
-LIVE_MODULES = {"test_node", "test_node_inputs", "test_node_user", "test_fuzz_node",
+LIVE_MODULES = {"test_node", "test_node_inputs", "test_node_user", "test_node_lifecycle", "test_fuzz_node",
                 "test_reliability_node", "test_replay", "test_replay_options", "test_tools",
                 "test_tf_tree", "test_tf_sensor_pose", "test_tf_wheels"}
 

@@ -52,7 +52,8 @@ def test_launch_file_starts_node_rviz_and_bag_play():
     text = (ROOT / "launch" / "online_em_slam.launch.py").read_text()
     tree = ast.parse(text)
     assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description" for n in tree.body)
-    for needle in ('"rviz2"', '"online_em_slam_node"', '"bag", "play"', '"--clock"', '"online_em_slam.rviz"'):
+    for needle in ('"rviz2"', '"online_em_slam_node"', '"bag", "play"', '"--clock"', '"online_em_slam.rviz"',
+                   '"autostart"', '"use_lifecycle_manager"', '"use_respawn"', '"namespace"', '"lifecycle_manager"'):
         assert needle in text, needle
 
 

@@ -77,6 +77,8 @@ NODE_SPECS = (
     ParamSpec("sensor_frame", "", "Frame of the observation clouds; clouds in another frame (other than "
               "base_frame, or one TF resolves when tf2_ros is importable) are used but counted and warned about. "
               "Empty: any frame but map_frame and odom_frame."),
+    ParamSpec("autostart", True, "Configure and activate the lifecycle node at start (false: wait for a "
+              "lifecycle manager or ros2 lifecycle set).", read_only=True),
     ParamSpec("publish_tf", True, "Publish map -> odom (disable when another node owns it)."),
     ParamSpec("transform_publish_period", 0.05, "Republish map -> odom every this many seconds "
               "(0: only after updates).", 0.0, 10.0, read_only=True),
@@ -140,6 +142,7 @@ class NodeSettings:
     odom_frame: str = "odom"
     base_frame: str = "base_link"
     sensor_frame: str = ""
+    autostart: bool = True
     publish_tf: bool = True
     transform_publish_period: float = 0.05
     transform_timeout: float = 0.2

@@ -55,23 +55,37 @@ class Inputs:
                                       shedding=self.sheds(s), on_applied=outputs.applied,
                                       on_settled=outputs.settled, on_jump=self._on_jump)
         self.motion_kind = self.pipeline.motion_kind
+        self.odom_sub = self.control_sub = self.obs_sub = None
+        self._unheard_warned: set[str] = set()
+
+    def subscribe(self) -> None:
+        """The input subscriptions (the lifecycle's activate); silent until heard."""
+        node, s = self.node, self.node.settings
         qos = input_qos(s.input_reliability, s.input_depth)
         self.odom_sub = node.create_subscription(Odometry, s.odom_topic, self.on_odom, qos,
                                                  event_callbacks=self._events(s.odom_topic))
-        self.control_sub = None
         if s.motion_source == "control":
             self.control_sub = node.create_subscription(TwistStamped, s.control_topic, self.on_control,
                                                         qos, event_callbacks=self._events(s.control_topic))
         self.obs_sub = node.create_subscription(PointCloud2, s.observations_topic, self.on_observations,
                                                 qos, event_callbacks=self._events(s.observations_topic))
         now = time.monotonic()
+        self.watch.clear(now)
         for sub, key, parameter, required in (
                 (self.odom_sub, s.odom_topic, "odom_topic", s.motion_source == "odom"),
                 (self.control_sub, s.control_topic, "control_topic", True),
                 (self.obs_sub, s.observations_topic, "observations_topic", True)):
             if sub is not None:
                 self.watch.expect(Stream(key, sub.topic_name, parameter, required), now)
-        self._unheard_warned: set[str] = set()
+        self._unheard_warned = set()
+
+    def unsubscribe(self) -> None:
+        """No more inputs (the lifecycle's deactivate); the estimate and the queue's counters stay."""
+        for sub in (self.odom_sub, self.control_sub, self.obs_sub):
+            if sub is not None:
+                self.node.destroy_subscription(sub)
+        self.odom_sub = self.control_sub = self.obs_sub = None
+        self.watch = InputWatch()
 
     @staticmethod
     def sheds(settings) -> bool:

@@ -29,14 +29,19 @@ from __future__ import annotations
 
 import threading
 from collections import Counter
+from contextlib import contextmanager
 
 import rclpy
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType, JumpThreshold
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, State, TransitionCallbackReturn
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
+from rclpy.service import Service
+from rclpy.subscription import Subscription
+from rclpy.timer import Timer
 from std_msgs.msg import Header
 
 from ..core.filter.slam import OnlineEMSlam
@@ -52,17 +57,32 @@ from .services import Commands
 __all__ = ["OnlineEmSlamNode", "input_qos", "latched_qos", "main"]
 
 
-class OnlineEmSlamNode(Node):
-    """Particle online EM landmark SLAM as a ROS 2 node (see module docstring)."""
+class OnlineEmSlamNode(LifecycleNode):
+    """Particle online EM landmark SLAM as a ROS 2 managed (lifecycle) node (see module docstring).
+
+    configure: the estimator, publishers, services, the input pipeline, the map file if
+    ``load_map_on_start``; activate: the input subscriptions and the timers; deactivate:
+    no more inputs, the estimate kept; cleanup: everything configure made.  With
+    ``autostart`` (the default) the node configures and activates itself, so ``ros2 run``
+    maps at once; without, a lifecycle manager (or ``ros2 lifecycle set``) drives it.
+    """
 
     def __init__(self, node_name: str = "online_em_slam", **kwargs) -> None:
         super().__init__(node_name, **kwargs)
         self._declare_parameters()
-        self._make_estimator()
-        self._make_outputs()
-        self._make_inputs()
-        self._make_services()
-        self._make_timers()
+        self._made: dict[str, list] = {"configure": [], "activate": []}
+        self._jump_handle = None
+        if self.settings.autostart:
+            self.trigger_configure()
+            self.trigger_activate()
+
+    # ------------------------------------------------------------------ lifecycle
+    def on_configure(self, state: State) -> TransitionCallbackReturn:
+        with self._making("configure"):
+            self._make_estimator()
+            self._make_outputs()
+            self._make_inputs()
+            self._make_services()
         if self.settings.load_map_on_start:
             self.log_result(*self.commands.load())
         s = self.settings
@@ -71,6 +91,57 @@ class OnlineEmSlamNode(Node):
             f"{self.config.filter.num_particles} particles, EM {self.config.em.algorithm}; "
             f"map -> odom via {self.outputs.transform.kind}" + ("" if s.publish_tf else " (publish_tf is false)")
             + f"; sensor pose from {'TF, else ' if self.inputs.frames.uses_tf else ''}sensor.offset_*")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: State) -> TransitionCallbackReturn:
+        with self._making("activate"):
+            self.inputs.subscribe()
+            self._make_timers()
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: State) -> TransitionCallbackReturn:
+        self.inputs.unsubscribe()
+        self._destroy("activate")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: State) -> TransitionCallbackReturn:
+        self._destroy("configure")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: State) -> TransitionCallbackReturn:
+        if self._made["activate"]:
+            self.inputs.unsubscribe()
+        self._destroy("activate")
+        self._destroy("configure")
+        return TransitionCallbackReturn.SUCCESS
+
+    @contextmanager
+    def _making(self, transition: str):
+        """Record the publishers, subscriptions, services and timers a transition creates."""
+        before = {id(entity) for entity in self._entities()}
+        yield
+        self._made[transition] += [e for e in self._entities() if id(e) not in before]
+
+    def _entities(self) -> list:
+        return [*self.publishers, *self.subscriptions, *self.services, *self.timers]
+
+    def _destroy(self, transition: str) -> None:
+        """Destroy what ``transition`` created (those still there)."""
+        if transition == "activate" and self._jump_handle is not None:
+            self._jump_handle.unregister()
+            self._jump_handle = None
+        alive = {id(e) for e in self._entities()}
+        for entity in self._made[transition]:
+            if id(entity) in alive:
+                self._destroy_entity(entity)
+        self._made[transition] = []
+
+    def _destroy_entity(self, entity) -> None:
+        for kind, destroy in ((Publisher, self.destroy_publisher), (Subscription, self.destroy_subscription),
+                              (Service, self.destroy_service), (Timer, self.destroy_timer)):
+            if isinstance(entity, kind):
+                destroy(entity)
+                return
 
     # ------------------------------------------------------------------ set-up steps
     def _declare_parameters(self) -> None:
@@ -126,7 +197,7 @@ class OnlineEmSlamNode(Node):
         self.outputs = Outputs(self, self.diagnostics)
 
     def _make_inputs(self) -> None:
-        """Subscriptions and the input pipeline, which calls the outputs back."""
+        """The input pipeline, which calls the outputs back (its subscriptions at activate)."""
         self.inputs = Inputs(self, self.outputs, self.diagnostics)
 
     def _make_services(self) -> None:
