@@ -47,6 +47,16 @@ def test_the_node_refuses_a_misspelled_key_with_one_error_line_and_status_1(tmp_
     assert len(lines) == 1 and "[ERROR]" in lines[0] and lines[0].endswith(HINT), lines
 
 
+def test_the_node_with_a_missing_params_file_says_so_without_a_traceback(tmp_path):
+    """ROS-conventions item 9: rcl refuses the arguments; one line names the file, status 1."""
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="OFF", RCUTILS_COLORIZED_OUTPUT="0")
+    done = subprocess.run([sys.executable, "-m", "online_em_slam.ros.node", "--ros-args", "--params-file",
+                           str(tmp_path / "missing.yaml")], capture_output=True, text=True, cwd=ROOT, env=env,
+                          timeout=30)
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr
+    assert "online_em_slam_node: error: " in done.stderr and "missing.yaml" in done.stderr
+
+
 def test_an_integer_for_a_double_and_ros_own_keys_are_accepted_by_both(tmp_path):
     rclpy = pytest.importorskip("rclpy")
     from rclpy.context import Context

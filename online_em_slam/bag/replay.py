@@ -256,7 +256,8 @@ def main(argv=None) -> int:
 
     rclpy.init(args=None)
     node = rclpy.create_node("bag_replay")
-    counts, skipped, elapsed, acked, exit_code = {}, {}, float("nan"), False, 0
+    counts, skipped, elapsed, acked, exit_code = {}, {}, None, False, 0
+    started = time.monotonic()
     try:
         with Reader(bag) as reader:
             conns, publishers, skipped, counts = _publishers(node, reader, args, log)
@@ -267,6 +268,7 @@ def main(argv=None) -> int:
             acked = _acknowledged(publishers, args.ack_timeout, log)
     except KeyboardInterrupt:
         exit_code = 130
+        elapsed = time.monotonic() - started       # stopped: the wall time until then
     except BagError as error:                 # the bag went bad while playing (truncated, corrupt)
         print(f"online-em-slam-replay: error: {error}", file=sys.stderr)
         exit_code = 1
@@ -276,7 +278,8 @@ def main(argv=None) -> int:
     for topic, c in counts.items():
         print(f"{topic:32s} {c:8d}")
     print(json.dumps({"published": counts, "total": sum(counts.values()), "skipped_topics": skipped,
-                      "wall_seconds": round(elapsed, 3), "acknowledged": acked}), flush=True)
+                      "wall_seconds": None if elapsed is None else round(elapsed, 3), "acknowledged": acked,
+                      "interrupted": exit_code == 130}), flush=True)
     return exit_code
 
 

@@ -27,6 +27,7 @@ merged with the pipeline's and the core's, :meth:`OnlineEmSlamNode.all_drops`).
 """
 from __future__ import annotations
 
+import sys
 import threading
 from collections import Counter
 from contextlib import contextmanager
@@ -302,7 +303,12 @@ class OnlineEmSlamNode(LifecycleNode):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args)
+    try:
+        rclpy.init(args=args)
+    except Exception as error:        # noqa: BLE001  rcl refuses its arguments (a missing --params-file)
+        reason = str(error).split(", at /")[0]      # rcl appends its source locations
+        print(f"online_em_slam_node: error: {reason}", file=sys.stderr)
+        return 1
     node = None
     code = 0
     try:
