@@ -333,3 +333,25 @@ def test_record_and_evaluate_car_park_match_run(ros, tmp_path):
     # (measured 0.41-1.7 m against the runner's 0.25 m, depending on the machine's load), so
     # only the map is compared; docs/RESULTS.md compares trajectories at replay rate 5.
     assert math.isfinite(live["trajectory"]["rmse"])
+
+
+def test_record_under_sim_time_writes_start_up_messages_at_the_first_clock():
+    """ROS-conventions item 6: started before the replay, the recorder gets the node's latched
+    start-up messages at sim time 0; they wait for the first /clock and are written at it, so
+    they come first in the bag (not at a wall-clock stamp after the whole run)."""
+    from types import SimpleNamespace
+
+    from online_em_slam.bag.record import Recorder
+
+    clock = {"ns": 0}
+    node = SimpleNamespace(get_clock=lambda: SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=clock["ns"])))
+    written = []
+    writer = SimpleNamespace(write=lambda conn, stamp, raw: written.append((conn, stamp, raw)))
+    recorder = Recorder(node, writer, ["/online_em_slam/landmarks"], log=lambda *_: None)
+    recorder.counts = {"latched": 0, "pose": 0}
+    recorder.store("c1", "latched", b"start-up")
+    assert recorder.holding and written == []
+    clock["ns"] = 5_000_000_000                    # the first /clock
+    recorder.store("c2", "pose", b"first")
+    assert written == [("c1", 5_000_000_000, b"start-up"), ("c2", 5_000_000_000, b"first")]
+    assert recorder.counts == {"latched": 1, "pose": 1} and not recorder.holding

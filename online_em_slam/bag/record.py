@@ -53,6 +53,7 @@ class Recorder:
         self.counts: dict[str, int] = {}
         self.skipped: dict[str, str] = {}
         self._subs: dict[str, object] = {}
+        self._early: list = []                     # (connection, topic, raw) waiting for the first /clock
 
     def discover(self) -> None:
         """Subscribe to the wanted topics that have publishers now (call periodically)."""
@@ -85,15 +86,41 @@ class Recorder:
         self.counts[topic] = 0
 
         def write(raw: bytes, conn=conn, topic=topic) -> None:
-            self.writer.write(conn, self._now_ns(), raw)
-            self.counts[topic] += 1
+            self.store(conn, topic, raw)
 
         self._subs[topic] = self.node.create_subscription(cls, topic, write, qos, raw=True)
         self.log(f"record: {topic} [{type_name}]" + (" (latched)" if latched else ""))
 
-    def _now_ns(self) -> int:
+    def store(self, conn, topic: str, raw: bytes) -> None:
+        """Write one message at the node's time.  Under sim time, before the first /clock, the
+        time is 0: such messages (latched start-up messages of a node started before the
+        replay) wait and are written at the first clock time, so they come first in the bag
+        rather than at a wall-clock stamp after the whole run."""
         now = self.node.get_clock().now().nanoseconds
-        return now if now > 0 else time.time_ns()       # sim time before the first /clock
+        if now <= 0:
+            self._early.append((conn, topic, raw))
+            return
+        self.flush_early(now)
+        self.writer.write(conn, now, raw)
+        self.counts[topic] += 1
+
+    @property
+    def holding(self) -> bool:
+        """Messages wait for the first /clock."""
+        return bool(self._early)
+
+    def flush_early(self, stamp_ns: int | None = None) -> None:
+        """Write the messages held for the first clock at ``stamp_ns`` (default: the node's time,
+        or the wall clock when no /clock ever came)."""
+        if not self._early:
+            return
+        if stamp_ns is None:
+            now = self.node.get_clock().now().nanoseconds
+            stamp_ns = now if now > 0 else time.time_ns()
+        for conn, topic, raw in self._early:
+            self.writer.write(conn, stamp_ns, raw)
+            self.counts[topic] += 1
+        self._early = []
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -148,6 +175,9 @@ def record(args, log) -> dict:
                     recorder.discover()
                     next_discovery = time.monotonic() + 0.2
                 executor.spin_once(timeout_sec=0.05)
+                if recorder.holding and node.get_clock().now().nanoseconds > 0:
+                    recorder.flush_early()           # the first /clock: the held messages at its time
+            recorder.flush_early()
     finally:
         executor.shutdown()
         node.destroy_node()
