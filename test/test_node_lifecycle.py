@@ -84,3 +84,13 @@ def _odometry(stamp: float, x: float):
     msg.pose.pose.position.x = float(x)
     msg.pose.pose.orientation.w = 1.0
     return msg
+
+
+def test_a_namespaced_node_takes_initialpose_in_its_namespace(ros):
+    """ROS-conventions item 7: under namespace robot1 the node listens on /robot1/initialpose
+    (as AMCL), so two robots' RViz poses do not mix; without a namespace it is /initialpose."""
+    node = ros.node = OnlineEmSlamNode(context=ros.context, namespace="robot1")
+    ros.executor.add_node(node)
+    topics = {s.topic_name for s in node.subscriptions}
+    assert "/robot1/initialpose" in topics and "/initialpose" not in topics
+    assert "/robot1/odom" in topics

@@ -23,8 +23,9 @@ class Commands:
 
     def __init__(self, node) -> None:
         self.node = node
-        # RViz's "2D Pose Estimate" and AMCL users publish here; remap to move it.
-        self.initial_pose_sub = node.create_subscription(PoseWithCovarianceStamped, "/initialpose",
+        # RViz's "2D Pose Estimate" and AMCL users publish here: `initialpose` in the node's
+        # namespace, as AMCL (/initialpose without one, /robot1/initialpose under robot1).
+        self.initial_pose_sub = node.create_subscription(PoseWithCovarianceStamped, "initialpose",
                                                          self.on_initial_pose, QoSProfile(depth=1))
         node.create_service(Trigger, "~/reset", self.reset)
         node.create_service(SetBool, "~/pause", self.pause)
