@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from .config_fields import check_fields, check_length, check_range, param, param_info
 
 LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "dof", "range_growth", "serial_correlation",
-                   "motion_scale", "motion_gains")
+                   "motion_scale", "motion_gains", "motion_shape")
 
 
 @dataclass
@@ -23,8 +23,10 @@ class NoiseLearningConfig:
         sigma_range), ``serial_correlation`` (how alike a landmark's
         observation errors are from one scan to the next: real detectors repeat
         their errors, so consecutive observations inform less than independent
-        ones) and ``motion_scale`` (one factor on the whole motion noise
-        covariance).
+        ones), ``motion_scale`` (one factor on the whole motion noise
+        covariance) and ``motion_shape`` (instead: one factor on the translation
+        noise and one on the rotation noise, so the starting values' ratio does
+        not stay; docs/METHOD.md "Motion shape").
     step_size_exponent: gamma_n = n^-exponent (n counts observations) of the
         observation-noise statistics; below 1 the statistics computed under
         the first, wrong noise values are forgotten.
@@ -61,7 +63,9 @@ class NoiseLearningConfig:
                                     "motion_scale"),
                                    choices=LEARNABLE_NOISE, doc="Quantities learned: any of range, bearing, "
                                    "correlation, mixture (with noise.model mixture), dof (with noise.model "
-                                   "student_t), range_growth, serial_correlation, motion_scale, motion_gains (the "
+                                   "student_t), range_growth, serial_correlation, motion_scale, motion_shape (a "
+                                   "scale on the translation and one on the rotation noise, instead of "
+                                   "motion_scale), motion_gains (the "
                                    "calibration of the motion input: motion.translation_gain, rotation_gain). "
                                    "To learn nothing set enabled false.")
     step_size_exponent: float = param(0.7, 0.5, 1.0, lo_open=True, doc="Step size gamma_n = n^-exponent of the "

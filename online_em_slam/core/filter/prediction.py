@@ -31,6 +31,7 @@ class PendingMotion:
         self.pose = pose.copy()
         self.jacobian = np.eye(3)
         self.cov = np.zeros((3, 3))
+        self.cov_parts = np.zeros((2, 3, 3))      # the track's covariance from translation, rotation noise
         self.sensitivity = np.zeros((3, 2))
 
     def queue(self, control: np.ndarray, dt: float) -> None:
@@ -38,7 +39,7 @@ class PendingMotion:
         self.dts.append(dt)
 
     def flush(self, config: MotionConfig, learns_gains: bool, means: np.ndarray, covs: np.ndarray,
-              drops: Counter) -> tuple[np.ndarray, np.ndarray] | None:
+              drops: Counter, parts: tuple | None = None) -> tuple[np.ndarray, np.ndarray] | None:
         """The particles' transitions (``means`` (N, 3), ``covs`` (N, 3, 3)) moved by the queued
         segments under ``config``, and the track with them; None when nothing is queued, or
         when the result is not finite (counted in ``drops``: the last finite state stays)."""
@@ -50,6 +51,11 @@ class PendingMotion:
         mean, cov, F = motion_models.integrate_segments(config, poses, covs, controls, dts, with_jacobian=True)
         sensitivity = (self._gain_sensitivity(config, controls, dts, mean[-1], F[-1]) if learns_gains
                        else self.sensitivity)
+        cov_parts = self.cov_parts
+        if parts is not None:            # the track's covariance split by noise group (motion shape learned)
+            cov_parts = np.stack([motion_models.integrate_segments(part, self.pose[None], self.cov_parts[k][None],
+                                                                   controls, dts)[1][0]
+                                  for k, part in enumerate(parts)])
         self.controls.clear()
         self.dts.clear()
         if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov)) and np.all(np.isfinite(sensitivity))):
@@ -57,7 +63,7 @@ class PendingMotion:
             drops["non_finite_prediction"] += 1
             return None
         mean[:, 2] = wrap_angle(mean[:, 2])
-        self.pose, self.cov = mean[-1], cov[-1]
+        self.pose, self.cov, self.cov_parts = mean[-1], cov[-1], cov_parts
         self.jacobian = F[-1] @ self.jacobian
         self.sensitivity = sensitivity
         return mean[:-1], cov[:-1]

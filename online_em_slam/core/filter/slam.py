@@ -187,7 +187,7 @@ class OnlineEMSlam:
     def _flush_motion(self) -> None:
         """Compound the queued control segments into the transition (T) in one pass (prediction.py)."""
         moved = self._motion.flush(self._noise.motion_config(), self._noise.learns_gains, self._pred_mean,
-                                   self._pred_cov, self.drops)
+                                   self._pred_cov, self.drops, self._noise.motion_parts())
         if moved is not None:
             self._pred_mean, self._pred_cov = moved
 
@@ -337,7 +337,7 @@ class OnlineEMSlam:
             H=terms.H, precision=terms.precision, motion_mean=self._motion.pose,
             motion_jacobian=self._motion.jacobian,
             motion_cov=self._motion.cov * self._noise.motion_scale() + motion_models.step_jitter(self.config.motion),
-            motion_gain_sensitivity=self._motion.sensitivity)
+            motion_gain_sensitivity=self._motion.sensitivity, motion_cov_parts=self._motion.cov_parts)
 
     def _commit(self, particles, weights, pose_correction) -> None:
         """New anchors for the next transition, moved by the M-step's pose correction."""

@@ -45,12 +45,12 @@ from ..step import FilterStepData
 from ...weighted import weighted_pose_mean
 from .averages import StochasticAverage
 from .motion_gains import MotionGains, gain_statistic, move_towards
-from .motion_noise import MotionWindow, absolute_error, prediction_statistic, ratio_error
+from .motion_noise import MotionWindow, absolute_error, prediction_statistic, ratio_error, shape_statistic
 from .observation import UsedObservations, mixture_m_step, observation_statistics, student_t_dof
 from .range_fit import RangeBins, range_noise_fit
 from .serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation, whitened
 
-MOTION_QUANTITIES = frozenset({"motion_scale", "motion_gains"})
+MOTION_QUANTITIES = frozenset({"motion_scale", "motion_gains", "motion_shape"})
 OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture", "dof", "range_growth",
                                     "serial_correlation"})
 # Largest change of the motion scale in use per filter step, in log: a factor 9 takes 110 steps.
@@ -100,6 +100,13 @@ class NoiseLearner:
         self.gains_estimate, self.gain_errors = self.gains_in_use.copy(), np.full(2, math.inf)
         self._gain_warm = np.zeros(2, dtype=bool)        # each gain in use once known to the tolerance
         self._motion_config = (None, None)                # (gains, the motion config with them)
+        # The motion noise's shape (motion_shape): one scale on the translation noise, one on the rotation's.
+        self.shape = "motion_shape" in learn
+        self.scales_in_use, self.scales_estimate = np.ones(2), np.ones(2)
+        self.shape_average = StochasticAverage(self.settings.motion_step_size_exponent)
+        self.parts = np.zeros((self.settings.motion_window + 1, 2, 3, 3))
+        self._shape_warm = False
+        self._parts_config = (None, None)
         self._start = config.noise                       # in use until warm: configured, or restored
         self._in_use = config.noise
 
@@ -137,7 +144,8 @@ class NoiseLearner:
     def all_in_use(self) -> bool:
         """Every learned quantity has replaced its configured value (nothing learned: False)."""
         observation = not (self.learn & OBSERVATION_QUANTITIES) or self.observation_noise_warm
-        motion = "motion_scale" not in self.learn or self.motion_scale_warm
+        motion = ("motion_scale" not in self.learn or self.shape or self.motion_scale_warm) and (
+            not self.shape or self._shape_warm)
         gains = self.gains is None or bool(self._gain_warm.any())       # the warm-up is re-filtered with them
         return bool(self.learn) and observation and motion and gains
 
@@ -173,8 +181,19 @@ class NoiseLearner:
         return self._in_use
 
     def motion_scale(self) -> float:
-        """Factor on the motion noise covariance (1 until warmed up or when not learned)."""
-        return self.scale_in_use
+        """Factor on the motion noise covariance (1 until warmed up or when not learned; 1 with
+        motion_shape, whose two scales the motion config carries)."""
+        return 1.0 if self.shape else self.scale_in_use
+
+    def motion_parts(self):
+        """With motion_shape: the gains' motion config with only the translation noise, and with
+        only the rotation noise (unit scales), for the track's covariance parts; else None."""
+        if not self.shape:
+            return None
+        base = self._gains_config()
+        if self._parts_config[0] is not base:
+            self._parts_config = (base, (scaled_noise(base, 1.0, 0.0), scaled_noise(base, 0.0, 1.0)))
+        return self._parts_config[1]
 
     @property
     def learns_gains(self) -> bool:
@@ -182,12 +201,20 @@ class NoiseLearner:
 
     def motion_config(self):
         """The motion config to integrate with: the configured one with the gains in use
-        (the motion scale multiplies the covariance it gives)."""
-        key = tuple(self.gains_in_use)
+        (the motion scale multiplies the covariance it gives; motion_shape's two scales are in it)."""
+        key = tuple(self.gains_in_use) + tuple(self.scales_in_use)
         if self._motion_config[0] != key:
-            self._motion_config = (key, replace(self.config.motion, translation_gain=float(self.gains_in_use[0]),
-                                                rotation_gain=float(self.gains_in_use[1])))
+            base = self._gains_config()
+            self._motion_config = (key, scaled_noise(base, *self.scales_in_use) if self.shape else base)
         return self._motion_config[1]
+
+    def _gains_config(self):
+        key = tuple(self.gains_in_use)
+        if getattr(self, "_gains_key", None) != key:
+            self._gains_key = key
+            self._gains_cfg = replace(self.config.motion, translation_gain=float(self.gains_in_use[0]),
+                                      rotation_gain=float(self.gains_in_use[1]))
+        return self._gains_cfg
 
     def gains_known(self) -> np.ndarray:
         """The gains' estimates where known to the tolerance, else the gains in use (2,)."""
@@ -271,10 +298,16 @@ class NoiseLearner:
         if self.gains is not None:
             self.sensitivities[:-1] = self.sensitivities[1:]
             self.sensitivities[-1] = data.motion_gain_sensitivity
+        if self.shape:
+            self.parts[:-1] = self.parts[1:]
+            self.parts[-1] = data.motion_cov_parts
         if not self.window.full or used is None:
             return
         if self.gains is not None:
             self._update_gains(used)
+        if self.shape:
+            self._update_shape(used)
+            return
         if "motion_scale" not in self.learn or not self._observation_noise_settled:
             return
         sample = prediction_statistic(self.window.steps, *self._scan_terms(used), weight_scale=self.scale_in_use)
@@ -292,6 +325,26 @@ class NoiseLearner:
             # spreads in (M) come from the filter under the scale in use; no jumps.
             ratio = _clip(self.scale_estimate / self.scale_in_use, *_SCALE_RATIO)
             self.scale_in_use = float(self.scale_in_use * ratio)
+
+    def _update_shape(self, used: UsedObservations) -> None:
+        """Blend the two-scale statistic of the window (motion_noise.shape_statistic); move the
+        scales in use towards the estimate once warm."""
+        if not self._observation_noise_settled:
+            return
+        z = shape_statistic(self.window.steps, self.parts, *self._scan_terms(used), self.scales_in_use)
+        if z is None:
+            return
+        self.shape_average.blend(z)
+        A, b = self.shape_average.value[:4].reshape(2, 2), self.shape_average.value[4:]
+        try:
+            estimate = np.linalg.solve(A, b)
+        except np.linalg.LinAlgError:
+            return
+        low, high = self.settings.motion_scale_limits
+        self.scales_estimate = np.clip(estimate, low, high)
+        self._shape_warm = self._shape_warm or self.shape_average.count >= self.settings.warmup_steps
+        if self._shape_warm:
+            self.scales_in_use = self.scales_in_use * np.clip(self.scales_estimate / self.scales_in_use, *_SCALE_RATIO)
 
     def _scale_beyond_limit(self, low: float, high: float) -> bool:
         """The statistic puts the scale beyond a limit by more than two standard errors: the
@@ -372,6 +425,7 @@ class NoiseLearner:
                 "serial_correlation": list(noise.serial_correlation),
                 "mixture_weights": list(noise.mixture_weights), "mixture_scales": list(noise.mixture_scales),
                 "motion_scale": self.scale_estimate, "motion_scale_error": _finite_or_none(self.motion_scale_error()),
+                "motion_scales": self.scales_estimate.tolist() if self.shape else None,
                 "motion_gains": self.gains_estimate.tolist(), "motion_gains_in_use": self._gain_warm.tolist(),
                 "motion_gains_error": [_finite_or_none(float(e)) for e in self.gain_errors]}
 
@@ -386,7 +440,8 @@ class NoiseLearner:
                   "noise.serial_correlation": [float(v) for v in noise.serial_correlation],
                   "noise.mixture_weights": [float(v) for v in noise.mixture_weights],
                   "noise.mixture_scales": [float(v) for v in noise.mixture_scales]}
-        motion = scaled_noise(self.config.motion, self.motion_scale(), self.motion_scale())
+        scales = self.scales_in_use if self.shape else (self.motion_scale(), self.motion_scale())
+        motion = scaled_noise(self.config.motion, *scales)
         values.update({f"motion.{name}": getattr(motion, name) for name in TRANSLATION_STDS + ROTATION_STDS})
         if self.gains is not None:
             values.update({"motion.translation_gain": float(self.gains_in_use[0]),

@@ -150,6 +150,29 @@ def prediction_statistic(steps: MotionSteps, pose_jacobian: np.ndarray, innovati
     return sample if np.all(np.isfinite(sample)) and sample[0] > 0 else None
 
 
+def shape_statistic(steps: MotionSteps, parts: np.ndarray, pose_jacobian: np.ndarray, innovation: np.ndarray,
+                    noise_cov: np.ndarray, scales: np.ndarray) -> np.ndarray | None:
+    """(A (2, 2) flattened, b (2,)) of the window's scan for the translation and rotation scales s:
+    E[nu^T W_j nu - tr(W_j K)] = sum_k s_k tr(W_j G_k), G_k = H_x Q_L^k H_x^T the window's motion
+    noise of group k at unit scale (``parts`` (L + 1, 2, 3, 3), per step), W_j = S^-1 G_j S^-1 at
+    the ``scales`` in use (the score's weights), K as in :func:`prediction_statistic`."""
+    C, _, J, Phi = compound(steps[1:])
+    Hx = pose_jacobian.reshape(-1, 3)
+    nu = innovation.reshape(-1) - Hx @ C
+    G = [Hx @ compound(MotionSteps(steps.c[1:], steps.F[1:], parts[1:, k], steps.J[1:], steps.P[1:]))[1] @ Hx.T
+         for k in range(2)]
+    K = Hx @ (Phi @ steps.P[0] @ Phi.T + J) @ Hx.T + block_diagonal(noise_cov)
+    try:
+        S_inv = np.linalg.inv(K + scales[0] * G[0] + scales[1] * G[1])
+    except np.linalg.LinAlgError:
+        return None
+    W = [S_inv @ g @ S_inv for g in G]
+    A = np.array([[np.trace(W[j] @ G[k]) for k in range(2)] for j in range(2)])
+    b = np.array([nu @ W[j] @ nu - np.trace(W[j] @ K) for j in range(2)])
+    z = np.concatenate([A.ravel(), b])
+    return z if np.all(np.isfinite(z)) and np.linalg.det(A) > 0 else None
+
+
 def block_diagonal(blocks: np.ndarray) -> np.ndarray:
     """(P, 2, 2) -> (2P, 2P)."""
     p = blocks.shape[0]
