@@ -168,7 +168,7 @@ def test_the_shape_statistic_finds_the_translation_and_rotation_scales(in_use):
     from online_em_slam.core.em.noise.motion_noise import shape_statistic
 
     rng = np.random.default_rng(12)
-    L, truth, n = 5, np.array([3.0, 0.4]), 6000
+    L, truth, n = 5, np.array([3.0, 0.4]), 3000
     F = np.eye(3) + 0.1 * rng.normal(size=(L + 1, 3, 3))
     roots = 0.05 * rng.normal(size=(L + 1, 2, 3, 1))                      # one noise direction per group
     roots[:, 1] *= 3.0                                  # the rotation part as large as the translation's
