@@ -13,6 +13,7 @@ import argparse
 import numpy as np
 
 from online_em_slam.datasets.mrclam.dataset import load_mrclam
+from online_em_slam.datasets.mrclam.survey import ground_truth_at
 
 
 def mad(x):
@@ -20,9 +21,7 @@ def mad(x):
 
 
 def errors(run):
-    gt, t = run.ground_truth_poses, run.measurement_times
-    x, y = np.interp(t, run.ground_truth_times, gt[:, 0]), np.interp(t, run.ground_truth_times, gt[:, 1])
-    yaw = np.interp(t, run.ground_truth_times, np.unwrap(gt[:, 2]))
+    x, y, yaw = ground_truth_at(run, run.measurement_times)
     survey = dict(zip(run.landmark_subjects.tolist(), run.landmark_xy))
     landmark = np.array([survey[s] for s in run.measurement_subjects.tolist()])
     expected_range = np.hypot(landmark[:, 0] - x, landmark[:, 1] - y)

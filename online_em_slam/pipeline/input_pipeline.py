@@ -23,19 +23,12 @@ from typing import Callable
 from .feeder import Fed, Feeder
 from .input_path import InputPath
 from .inputs import CONTROL, OBSERVATIONS, ODOMETRY, Input
-from .load import ArrivalLag, LoadMonitor
+from .load import LoadMonitor
 from .stamp_guard import Verdict
 
 Applied = Callable[[Input, Fed], None]
 Settled = Callable[[bool, bool], None]
 Jumped = Callable[[Verdict, bool], None]
-
-
-#: The node is behind once its inputs reach it this share of ``input_delay`` later than usual: a
-#: stream waiting in its queues is then not taken for silent; scans are shed once the lag reaches
-#: SHED_SHARE of it (a burst the node drains in a moment is not shed).
-BEHIND_SHARE = 0.5
-SHED_SHARE = 1.0
 
 
 def merged_streams(motion_source: str) -> tuple[int, ...]:
@@ -46,9 +39,9 @@ def merged_streams(motion_source: str) -> tuple[int, ...]:
 class InputPipeline:
     """Owns the input path, the feeder and load shedding of one estimator.
 
-    ``shedding``: skip observation updates while the load is above the limit or
-    the inputs arrive late (:class:`ArrivalLag`; best-effort inputs that would
-    otherwise overflow; never for lossless inputs).  ``clock``: wall time for the load (seconds, monotonic).
+    ``shedding``: skip observation updates while the load is above the limit
+    (best-effort inputs that would otherwise overflow; never for lossless
+    inputs).  ``clock``: wall time for the load (seconds, monotonic).
     """
 
     def __init__(self, estimator, motion_source: str, input_delay: float, jump_threshold: float, *,
@@ -60,7 +53,6 @@ class InputPipeline:
                               restart_on_jump_back=restart_on_jump_back)
         self.feeder = Feeder(estimator, motion_source, self.path.drops)
         self.load = LoadMonitor()
-        self.arrival = ArrivalLag(BEHIND_SHARE * input_delay)
         self.max_load = 0.0
         self.shedding = shedding
         self.on_applied = on_applied
@@ -92,7 +84,6 @@ class InputPipeline:
     def set_input_delay(self, seconds: float) -> None:
         """How long the merge waits for a silent stream (the node's ``input_delay``, changed at run time)."""
         self.path.sequencer.silence = float(seconds)
-        self.arrival.limit = BEHIND_SHARE * float(seconds)
 
     # ------------------------------------------------------------------ inputs
     def push(self, kind: int, stamp: float, payload, wall: float) -> None:
@@ -108,7 +99,6 @@ class InputPipeline:
 
     def release(self, wall: float) -> None:
         """Apply the inputs that became safe because a stream went silent (call periodically)."""
-        self._judge_behind()
         self._apply(self.path.release(wall))
 
     def flush(self) -> None:
@@ -121,23 +111,6 @@ class InputPipeline:
     def watch(self, kind: int, stamp: float) -> None:
         """A periodic stream that is not merged: see :meth:`InputPath.watch`."""
         self.path.watch(kind, stamp)
-
-    def arrived(self, delay: float) -> None:
-        """A message's delay from its publication to its callback (s, wall): while it shows the
-        node behind, a stream that seems silent is still waited for and observations are shed.
-        The node does not call it yet: the publication time is in rclpy's MessageInfo, and
-        rclpy's EventsExecutor cannot call a callback that takes one."""
-        self.arrival.note(delay, self.clock())
-        self._judge_behind()
-
-    def _lagging(self) -> bool:
-        """Behind by SHED_SHARE of input_delay: shed scans until caught up."""
-        return self._judge_behind() and self.arrival.excess > SHED_SHARE / BEHIND_SHARE * self.arrival.limit
-
-    def _judge_behind(self) -> bool:
-        behind = self.arrival.behind(self.clock())
-        self.path.sequencer.consumer_behind = behind
-        return behind
 
     def busy(self, end: float, seconds: float) -> None:
         """``seconds`` of input handling that ended at ``end`` (clock time): the load."""
@@ -177,5 +150,5 @@ class InputPipeline:
     def _feed(self, item: Input) -> Fed:
         load = self.current_load() if item.kind == OBSERVATIONS else 0.0
         self.max_load = max(self.max_load, load)
-        shed = self.shedding and (load > self.load.limit or self._lagging())
+        shed = self.shedding and load > self.load.limit
         return self.feeder.apply(item, use_observations=not shed)

@@ -10,7 +10,6 @@ only misses some scans.
 """
 from __future__ import annotations
 
-import math
 from collections import deque
 
 
@@ -37,40 +36,3 @@ class LoadMonitor:
 
     def overloaded(self, now: float) -> bool:
         return self.load(now) > self.limit
-
-
-class ArrivalLag:
-    """How far behind its inputs the node is: the wall time from a message's publication
-    (its source timestamp, from the middleware) to its callback, less the smallest such
-    delay seen (the link's own, and any offset between the two machines' clocks).
-
-    Past ``limit`` seconds (half the merge's ``input_delay``, input_pipeline.BEHIND_SHARE) the
-    messages wait in the node's own queues: the node is behind.
-    A stream then looks silent only because its callbacks wait behind the others', so
-    the merge must keep waiting for it (or its motion would come out of order), and
-    observation updates are shed until the node has caught up.
-    """
-
-    def __init__(self, limit: float = 0.5) -> None:
-        self.limit = float(limit)
-        self.reset()
-
-    def reset(self) -> None:
-        self.baseline = math.inf
-        self.excess = 0.0
-        self.max_excess = 0.0
-        self.noted: float | None = None          # monotonic time of the last note
-
-    def note(self, delay: float, now: float) -> None:
-        """The publication-to-callback delay (s) of one message, noted at ``now`` (monotonic s)."""
-        if not math.isfinite(delay):
-            return
-        self.baseline = min(self.baseline, delay)
-        self.excess = delay - self.baseline
-        self.max_excess = max(self.max_excess, self.excess)
-        self.noted = now
-
-    def behind(self, now: float) -> bool:
-        """Messages arrive late, and still arrive: once nothing has come for ``limit`` seconds
-        the node's queues are empty, whatever the last message's delay was."""
-        return self.excess > self.limit and self.noted is not None and now - self.noted <= self.limit

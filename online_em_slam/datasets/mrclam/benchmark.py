@@ -242,11 +242,9 @@ def solve_batch(item: Item) -> dict:
 
 
 def scored(item: Item, inputs, positions, ids) -> dict:
-    """Landmark metrics of a map: by id for known ids (every landmark's error counts), else by position."""
-    from ...offline.evaluation import landmark_metrics, landmark_metrics_by_id
-    if item.ids == "known":
-        return landmark_metrics_by_id(positions, ids, inputs.landmarks, inputs.landmark_ids, MATCH_GATE).to_dict()
-    return landmark_metrics(positions, inputs.landmarks, MATCH_GATE, ids).to_dict()
+    """Landmark metrics of a map as the runner scores it: by id for known ids, else by position."""
+    from ...offline.report import scored_landmarks
+    return scored_landmarks(positions, ids, inputs, MATCH_GATE, by_id=item.ids == "known").to_dict()
 
 
 def rescored(item: Item, metrics: dict) -> dict:

@@ -26,15 +26,21 @@ OTHER_ENTRY_HIT = 0.5
 MIN_MEASUREMENTS = 10
 
 
+def ground_truth_at(run, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ground-truth pose (x, y, yaw), each (n,), interpolated at ``times`` (yaw unwrapped first)."""
+    gt_t, gt = run.ground_truth_times, run.ground_truth_poses
+    return (np.interp(times, gt_t, gt[:, 0]), np.interp(times, gt_t, gt[:, 1]),
+            np.interp(times, gt_t, np.unwrap(gt[:, 2])))
+
+
 def median_placements(run) -> dict[int, np.ndarray]:
     """Median Vicon-frame position (2,) of each measured subject's measurements, placed from
-    the ground-truth pose interpolated at the measurement time (yaw unwrapped first)."""
-    t, gt_t, gt = run.measurement_times, run.ground_truth_times, run.ground_truth_poses
+    the ground-truth pose at the measurement time (:func:`ground_truth_at`)."""
+    t, gt_t = run.measurement_times, run.ground_truth_times
     if len(t) == 0 or len(gt_t) < 2:
         return {}
     inside = (t >= gt_t[0]) & (t <= gt_t[-1])
-    x, y = np.interp(t, gt_t, gt[:, 0]), np.interp(t, gt_t, gt[:, 1])
-    yaw = np.interp(t, gt_t, np.unwrap(gt[:, 2]))
+    x, y, yaw = ground_truth_at(run, t)
     px = x + run.measurement_range * np.cos(yaw + run.measurement_bearing)
     py = y + run.measurement_range * np.sin(yaw + run.measurement_bearing)
     placements = {}

@@ -99,7 +99,8 @@ class NoiseLearner:
         self.gains_in_use = np.array([config.motion.translation_gain, config.motion.rotation_gain])
         self.gains_estimate, self.gain_errors = self.gains_in_use.copy(), np.full(2, math.inf)
         self._gain_warm = np.zeros(2, dtype=bool)        # each gain in use once known to the tolerance
-        self._motion_config = (None, None)                # (gains, the motion config with them)
+        self._motion_config = (None, None)                # (gains and scales, the motion config with them)
+        self._gains_config_made = (None, None)            # (gains, the configured motion config with them)
         # The motion noise's shape (motion_shape): one scale on the translation noise, one on the rotation's.
         self.shape = "motion_shape" in learn
         self.scales_in_use, self.scales_estimate = np.ones(2), np.ones(2)
@@ -209,12 +210,12 @@ class NoiseLearner:
         return self._motion_config[1]
 
     def _gains_config(self):
+        """The configured motion config with the gains in use (made again only when they change)."""
         key = tuple(self.gains_in_use)
-        if getattr(self, "_gains_key", None) != key:
-            self._gains_key = key
-            self._gains_cfg = replace(self.config.motion, translation_gain=float(self.gains_in_use[0]),
-                                      rotation_gain=float(self.gains_in_use[1]))
-        return self._gains_cfg
+        if self._gains_config_made[0] != key:
+            self._gains_config_made = (key, replace(self.config.motion, translation_gain=float(self.gains_in_use[0]),
+                                                    rotation_gain=float(self.gains_in_use[1])))
+        return self._gains_config_made[1]
 
     def gains_known(self) -> np.ndarray:
         """The gains' estimates where known to the tolerance, else the gains in use (2,)."""
