@@ -234,7 +234,7 @@ def _acknowledged(publishers, timeout: float, log) -> bool:
     return acked
 
 
-def main(argv=None) -> int:
+def _main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         wait = parse_wait(args.wait_subscribers)
@@ -281,6 +281,14 @@ def main(argv=None) -> int:
                       "wall_seconds": None if elapsed is None else round(elapsed, 3), "acknowledged": acked,
                       "interrupted": exit_code == 130}), flush=True)
     return exit_code
+
+
+def main(argv=None) -> int:
+    """``online-em-slam-replay``; Ctrl-C at any point ends it with status 130, without a traceback."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        return 130
 
 
 if __name__ == "__main__":
