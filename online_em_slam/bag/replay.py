@@ -287,7 +287,9 @@ def main(argv=None) -> int:
     """``online-em-slam-replay``; Ctrl-C at any point ends it with status 130, without a traceback."""
     try:
         return _main(argv)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:                 # stopped while starting: the summary, nothing published
+        print(json.dumps({"published": {}, "total": 0, "skipped_topics": {}, "wall_seconds": None,
+                          "acknowledged": False, "interrupted": True}), flush=True)
         return 130
 
 
