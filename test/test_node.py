@@ -251,14 +251,14 @@ def test_simulated_run_converges_late_subscriber_and_services(ros, tmp_path):
     assert sum(m.type == m.TEXT_VIEW_FACING for m in markers) == len(table)
 
     # save -> reset -> load restores the same map.
-    saved = ros.call(Trigger, "save_map", Trigger.Request())
+    saved = ros.call(Trigger, "save_map_file", Trigger.Request())
     assert saved.success, saved.message
     assert os.path.exists(map_file) and not [f for f in os.listdir(os.path.dirname(map_file)) if "tmp" in f]
     reset = ros.call(Trigger, "reset", Trigger.Request())
     assert reset.success
     assert len(node.slam.landmarks()) == 0
     assert ros.spin_until(lambda: len(landmark_table(ros.received["landmarks"][-1])) == 0, 3.0)
-    loaded = ros.call(Trigger, "load_map", Trigger.Request())
+    loaded = ros.call(Trigger, "load_map_file", Trigger.Request())
     assert loaded.success, loaded.message
     assert ros.spin_until(lambda: landmark_table(ros.received["landmarks"][-1]) == table, 3.0)
 

@@ -62,7 +62,7 @@ def test_corrupt_map_on_load_map_fails_and_leaves_the_estimate(ros, tmp_path):
     map_file = tmp_path / "maps" / "map.npz"
     node = ros.start(motion_source="odom", map_file=str(map_file))
     drive(ros, node, T0, 10)
-    assert ros.call(Trigger, "save_map", Trigger.Request()).success
+    assert ros.call(Trigger, "save_map_file", Trigger.Request()).success
     with np.load(map_file) as data:
         arrays = {k: np.array(data[k]) for k in data.files}
     corruptions = {"inconsistent lengths": dict(arrays, ids=arrays["ids"][:1]),
@@ -73,13 +73,13 @@ def test_corrupt_map_on_load_map_fails_and_leaves_the_estimate(ros, tmp_path):
     pose_before = node.slam.pose().mean
     for kind, data in corruptions.items():
         np.savez(map_file, **data)
-        result = ros.call(Trigger, "load_map", Trigger.Request())
+        result = ros.call(Trigger, "load_map_file", Trigger.Request())
         assert not result.success and str(map_file) in result.message, (kind, result.message)
         after = node.slam.landmarks()
         np.testing.assert_array_equal(after.positions, before.positions)
         np.testing.assert_array_equal(node.slam.pose().mean, pose_before)
     map_file.write_bytes(map_file.read_bytes()[:100])                      # truncated
-    result = ros.call(Trigger, "load_map", Trigger.Request())
+    result = ros.call(Trigger, "load_map_file", Trigger.Request())
     assert not result.success and "truncated" in result.message
     # Still running, still publishing finite poses.
     ros.received["pose"].clear()
@@ -110,7 +110,7 @@ def test_save_map_is_confined_to_map_directory(ros, tmp_path, map_file, expected
     (outside / "victim.npz").write_bytes(b"precious")
     node = ros.start(motion_source="odom", map_directory=str(maps), map_file=map_file.format(outside=outside))
     drive(ros, node, T0, 3)
-    for service in ("save_map", "load_map"):
+    for service in ("save_map_file", "load_map_file"):
         result = ros.call(Trigger, service, Trigger.Request())
         assert not result.success and expected in result.message, result.message
     assert sorted(os.listdir(outside)) == ["victim.npz"] and (outside / "victim.npz").read_bytes() == b"precious"
@@ -119,7 +119,7 @@ def test_save_map_is_confined_to_map_directory(ros, tmp_path, map_file, expected
 def test_save_map_creates_no_parent_directories_outside(ros, tmp_path):
     node = ros.start(motion_source="odom", map_directory=str(tmp_path / "a" / "b"), map_file="map.npz")
     drive(ros, node, T0, 3)
-    result = ros.call(Trigger, "save_map", Trigger.Request())
+    result = ros.call(Trigger, "save_map_file", Trigger.Request())
     assert not result.success and not (tmp_path / "a").exists()
     # The configured directory itself, and directories inside it, are created.
     node2_dir = tmp_path / "maps"
@@ -127,7 +127,7 @@ def test_save_map_creates_no_parent_directories_outside(ros, tmp_path):
     ros.executor.remove_node(ros.node)
     node = ros.start(motion_source="odom", map_directory=str(node2_dir), map_file="sub/map.npz")
     drive(ros, node, T0, 3)
-    result = ros.call(Trigger, "save_map", Trigger.Request())
+    result = ros.call(Trigger, "save_map_file", Trigger.Request())
     assert result.success, result.message
     assert (node2_dir / "sub" / "map.npz").exists()
 

@@ -118,12 +118,14 @@ NODE_SPECS = (
     ParamSpec("time_jump_threshold", 1.0, "A backward jump of more than this (s), once confirmed, restarts the "
               "pose and the time line (the map stays); smaller backward steps are dropped as out_of_order.",
               0.01, 1e6, read_only=True),
-    ParamSpec("map_file", "~/.ros/online_em_slam_map.npz", "File of ~/save_map and ~/load_map; relative to "
-              "map_directory, and must lie inside it ('..' and symlinks out of it are refused). Read-only "
-              "at run time: any DDS participant could otherwise make ~/save_map overwrite files.",
+    ParamSpec("map_file", "~/.ros/online_em_slam_map.npz", "File of ~/save_map_file and ~/load_map_file, "
+              "and of ~/save_map and ~/load_map called without a file; relative to map_directory, and must "
+              "lie inside it ('..' and symlinks out of it are refused). Read-only at run time: any DDS "
+              "participant could otherwise make ~/save_map overwrite files.",
               read_only=True),
-    ParamSpec("map_directory", "", "Directory ~/save_map and ~/load_map are confined to (created by "
-              "~/save_map if missing; nothing outside it is). Empty: the directory of map_file.",
+    ParamSpec("map_directory", "", "Directory every map file of ~/save_map and ~/load_map (a file name "
+              "per call) is confined to (created by ~/save_map if missing; nothing outside it is). Empty: "
+              "the directory of map_file.",
               read_only=True),
     ParamSpec("load_map_on_start", False, "Load map_file at start-up."),
     ParamSpec("initial_pose.x", 0.0, "Initial pose x in the map frame (m).", -1e7, 1e7),

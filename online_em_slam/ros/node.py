@@ -7,7 +7,8 @@ Inputs
 Outputs
   ``~/pose`` ``~/path`` ``~/particles`` ``~/landmarks`` ``~/landmark_markers``,
   map -> odom (tf2_ros, else tf2_msgs/TFMessage on /tf, else ~/map_to_odom) and
-  /diagnostics.  Services ``~/reset`` ``~/pause`` ``~/save_map`` ``~/load_map``.
+  /diagnostics.  Services ``~/reset`` ``~/pause`` ``~/save_map`` ``~/load_map`` (a file
+  name per call) and ``~/save_map_file`` ``~/load_map_file`` (``map_file``).
 
 The node holds the estimator, the settings and the shared state (lock, drop
 counters, pause) and wires its parts, one module each:
@@ -20,7 +21,8 @@ counters, pause) and wires its parts, one module each:
   :mod:`.outputs`      publishers and map -> odom, called back by the pipeline for
                        every applied input;
   :mod:`.diagnostics`  /diagnostics;
-  :mod:`.services`     reset, pause, save/load map, /initialpose.
+  :mod:`.services`     reset, pause, initialpose;
+  :mod:`.map_files`    save/load map by file name.
 
 Every input that cannot be used is dropped and counted by reason (node counters
 merged with the pipeline's and the core's, :meth:`OnlineEmSlamNode.all_drops`).
@@ -53,6 +55,7 @@ from .outputs import Outputs
 from ..parameters.specs import (ParameterError, all_specs, as_declared_type, build, check_names, current_values,
                                 declare_parameters)
 from .qos import input_qos, latched_qos
+from .map_files import MapFiles
 from .services import Commands
 
 __all__ = ["OnlineEmSlamNode", "input_qos", "latched_qos", "main"]
@@ -85,7 +88,7 @@ class OnlineEmSlamNode(LifecycleNode):
             self._make_inputs()
             self._make_services()
         if self.settings.load_map_on_start:
-            self.log_result(*self.commands.load())
+            self.log_result(*self.map_files.load())
         s = self.settings
         self.get_logger().info(
             f"online EM SLAM: motion_source={s.motion_source} (model {self.config.motion.model}), "
@@ -204,6 +207,7 @@ class OnlineEmSlamNode(LifecycleNode):
     def _make_services(self) -> None:
         """Services and /initialpose (``commands``: rclpy's Node already has a ``services`` property)."""
         self.commands = Commands(self)
+        self.map_files = MapFiles(self)
 
     def _make_timers(self) -> None:
         """Housekeeping, map, diagnostics and map -> odom timers; the /clock jump callback."""
