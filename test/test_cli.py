@@ -54,6 +54,7 @@ def test_run_writes_outputs_and_is_deterministic(car_park_bag, tmp_path):
     for key in ("mean_step_ms", "p99_step_ms", "real_time_factor", "wall_time_s", "dataset_duration_s"):
         assert key in m["timing"], key
     assert m["trajectory"]["alignment"] == "none"
+    assert m["frame"]["same_frame"] is True and not any(m["frame"]["to_truth"])    # auto: the GPS start
     assert m["timing"]["dataset_duration_s"] == pytest.approx(125.05, abs=0.1)
     assert m["landmarks"]["n_true"] == 15
     # sanity of the tuned configuration (loose bounds: the report gives the measured values)
@@ -61,6 +62,22 @@ def test_run_writes_outputs_and_is_deterministic(car_park_bag, tmp_path):
     assert m["trajectory"]["median"] < 1.5
     rows = (out_a / "trajectory.csv").read_text().splitlines()
     assert len(rows) - 1 == m["n_observation_messages"]      # one pose per observation message (586)
+
+
+def test_run_started_outside_the_truth_frame_says_so_and_scores_in_it(car_park_bag, tmp_path, capsys):
+    """--initial-pose params ((0, 0, 0): the car park's GPS frame has the car elsewhere) used to
+    score 1/15 beacons and 22 m of trajectory error without a word about the frames."""
+    out = tmp_path / "params"
+    assert cli.main(["run", str(car_park_bag), "--params", str(CAR_PARK_PARAMS), "--seed", "3",
+                     "--initial-pose", "params", "--output", str(out), "--no-plot"]) == 0
+    printed = capsys.readouterr().out
+    assert "after moving the estimate by its start pose" in printed
+    assert "note: the estimate's frame is not the ground truth's" in printed
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["frame"]["same_frame"] is False and m["frame"]["offset_m"] > 5.0
+    assert m["frame"]["initial_pose_source"] == "default (0, 0, 0)"
+    assert m["landmarks"]["n_matched"] >= 13 and m["landmarks"]["rmse"] < 1.0
+    assert m["trajectory"]["median"] < 1.5
 
 
 def test_compare_writes_table(car_park_bag, tmp_path):

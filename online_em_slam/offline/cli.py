@@ -30,7 +30,11 @@ from GPS: the sensor point at the first fix, the heading fitted to the first
 10 m of GPS track (using /odom for the shape of the track when the bag has it;
 see :func:`online_em_slam.offline.evaluation.initial_pose_from_gps`); else (0, 0, 0).
 No trajectory alignment is applied afterwards (``--align`` additionally reports
-the error after a rigid alignment).
+the error after a rigid alignment).  An initial pose not taken from the ground truth
+(params, X,Y,YAW) that lies farther than the match gate or 10 deg from the ground
+truth's start puts the estimate in another frame: it is then scored after the motion
+that carries its start pose onto the ground truth's, and the summary and
+metrics.json's ``frame`` say so (:mod:`online_em_slam.offline.frames`).
 
 Outputs in DIR: ``trajectory.csv`` (t,x,y,yaw: the base pose after each
 observation message), ``landmarks.csv`` (id,x,y,cov_xx,cov_xy,cov_yy,n_obs: the
@@ -109,6 +113,8 @@ def cmd_run(args) -> int:
     config, _, file_values, inputs, initial = prepare(args)
     metrics = run_one(inputs, config, args.method, initial, Path(args.output), **_run_options(args, file_values))
     print(summary_line(metrics))
+    if metrics.get("frame") and metrics["frame"]["same_frame"] is not True:
+        print(f"note: {metrics['frame']['note']}")
     print(f"wrote {args.output}/trajectory.csv, landmarks.csv, metrics.json" + ("" if args.no_plot else ", map.png")
           + (", noise.yaml" if "noise_learned" in metrics else ""))
     return 0

@@ -27,13 +27,13 @@ Outputs in DIR (default: OUTBAG_eval): ``metrics.json``, ``trajectory.csv``,
 from __future__ import annotations
 
 import csv
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..bag.bagio import absolute_topic
+from .frames import compose, inverse
 from .evaluation import (DEFAULT_MATCH_GATE, initial_pose_from_gps, landmark_metrics, sensor_points,
                          trajectory_metrics)
 from ..messages.quaternion import quaternion_to_yaw
@@ -114,20 +114,6 @@ def read_truth(bag, settings) -> Truth:
 
 
 # --------------------------------------------------------------------------- frames
-
-def compose(a, b) -> np.ndarray:
-    """2-D pose composition a (+) b for a = (x, y, yaw) and b (n, 3)."""
-    b = np.asarray(b, dtype=float).reshape(-1, 3)
-    c, s = math.cos(a[2]), math.sin(a[2])
-    out = np.column_stack([a[0] + c * b[:, 0] - s * b[:, 1], a[1] + s * b[:, 0] + c * b[:, 1], a[2] + b[:, 2]])
-    out[:, 2] = np.arctan2(np.sin(out[:, 2]), np.cos(out[:, 2]))
-    return out
-
-
-def inverse(p) -> tuple[float, float, float]:
-    c, s = math.cos(p[2]), math.sin(p[2])
-    return (-c * p[0] - s * p[1], s * p[0] - c * p[1], -p[2])
-
 
 def map_in_truth_frame(mode: str, truth: Truth, node_initial, sensor_offset) -> tuple[float, float, float]:
     """T(truth <- node map) for the ``--node-initial-pose`` mode (see the module docstring)."""

@@ -411,6 +411,7 @@ class InitialPose:
     yaw: float
     stamp: float
     source: str          # how it was obtained (for metrics.json)
+    in_truth_frame: bool = False   # taken from the ground truth (GPS, /ground_truth/pose): its frame
 
     @property
     def pose(self) -> tuple[float, float, float]:
@@ -471,4 +472,4 @@ def initial_pose_from_gps(gps_times, gps_xy, sensor_offset, start_time: float,
     yaw = math.atan2(math.sin(yaw), math.cos(yaw))
     c, s = math.cos(yaw), math.sin(yaw)
     base = sensor_map - np.array([c * offset[0] - s * offset[1], s * offset[0] + c * offset[1]])
-    return InitialPose(float(base[0]), float(base[1]), float(yaw), float(start_time), source)
+    return InitialPose(float(base[0]), float(base[1]), float(yaw), float(start_time), source, in_truth_frame=True)

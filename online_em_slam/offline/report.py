@@ -14,14 +14,19 @@ import numpy as np
 from ..core.config import SlamConfig
 from .evaluation import (DEFAULT_MATCH_GATE, landmark_metrics, landmark_metrics_by_id, sensor_points, timing_metrics,
                          trajectory_metrics)
+from .frames import FrameCheck, points_to_truth, poses_to_truth
 
 TRAJECTORY_HEADER = ("t", "x", "y", "yaw")
 LANDMARK_HEADER = ("id", "x", "y", "cov_xx", "cov_xy", "cov_yy", "n_obs")
 
 
 def evaluate(result, inputs, config: SlamConfig, match_gate: float = DEFAULT_MATCH_GATE,
-             align: bool = False) -> dict:
-    """metrics.json content for a run (runner.RunResult on runner.BagInputs)."""
+             align: bool = False, frame: FrameCheck | None = None) -> dict:
+    """metrics.json content for a run (runner.RunResult on runner.BagInputs).
+
+    ``frame`` (frames.check_frame): the estimate is scored after its motion into the
+    ground-truth frame, and metrics.json's ``frame`` says which case the run was in.
+    """
     lm = result.landmarks
     confirmed = np.asarray(lm.n_obs) >= config.association.confirm_observations
     metrics: dict = {
@@ -32,13 +37,18 @@ def evaluate(result, inputs, config: SlamConfig, match_gate: float = DEFAULT_MAT
         "drops": {k: int(v) for k, v in sorted(result.drops.items())},
         "runner_skipped": result.skipped,
     }
+    positions, traj = np.asarray(lm.positions).reshape(-1, 2), result.trajectory
+    if frame is not None and (inputs.landmarks is not None or inputs.has_gps):
+        metrics["frame"] = frame.to_dict()
+    if frame is not None and frame.moved:
+        positions = points_to_truth(frame, positions)
+        traj = np.column_stack([traj[:, 0], poses_to_truth(frame, traj[:, 1:4])]) if len(traj) else traj
     if inputs.landmarks is not None:
-        lmm = scored_landmarks(np.asarray(lm.positions)[confirmed], np.asarray(lm.ids)[confirmed], inputs,
+        lmm = scored_landmarks(positions[confirmed], np.asarray(lm.ids)[confirmed], inputs,
                                match_gate, by_id=result.known_ids)
         metrics["landmarks"] = lmm.to_dict()
         metrics["landmarks"]["evaluated"] = "confirmed (n_obs >= association.confirm_observations)"
-    if inputs.has_gps and len(result.trajectory):
-        traj = result.trajectory
+    if inputs.has_gps and len(traj):
         points = sensor_points(traj[:, 1:4], (config.sensor.offset_x, config.sensor.offset_y))
         tm = trajectory_metrics(traj[:, 0], points, inputs.gps_times, inputs.gps_xy, align=align)
         metrics["trajectory"] = tm.to_dict()
@@ -118,6 +128,12 @@ def summary_line(metrics: dict) -> str:
     tr = metrics.get("trajectory")
     if tr:
         parts.append(f"trajectory RMSE {_fmt(tr['rmse'])} m (median {_fmt(tr['median'])}, max {_fmt(tr['max'])});")
+    frame = metrics.get("frame")
+    if frame and frame.get("same_frame") is False:
+        parts.append(f"scored in the ground-truth frame after moving the estimate by its start pose "
+                     f"({_fmt(frame['offset_m'], 1)} m, {_fmt(frame['offset_deg'], 1)} deg off);")
+    elif frame and frame.get("same_frame") is None:
+        parts.append("frames not checked (no ground-truth start pose);")
     tm = metrics["timing"]
     parts.append(f"{metrics['n_landmarks']} landmarks ({metrics['n_confirmed_landmarks']} confirmed); "
                  f"{_fmt(tm['mean_step_ms'], 2)} ms/step (p99 {_fmt(tm['p99_step_ms'], 2)}), "

@@ -26,6 +26,7 @@ from ..bag.bagio import absolute_topic
 from ..messages.cloud import CloudFormatError, decode_message, observations_from_message
 from ..core.config import SlamConfig
 from .evaluation import DEFAULT_MATCH_GATE, InitialPose, initial_pose_from_gps
+from .frames import check_frame, points_to_truth, poses_to_truth
 from ..pipeline import CONTROL, OBSERVATIONS, ODOMETRY, InputPipeline
 from ..bag.progress import Progress
 from ..messages.quaternion import odometry_yaw
@@ -250,9 +251,7 @@ def choose_initial_pose(mode: str, inputs: BagInputs, config: SlamConfig, settin
     if mode == "gps":
         if not inputs.has_gps:
             raise ValueError(f"--initial-pose gps: the bag has no {GT_POSITION_TOPIC}")
-        odom = (inputs.odom_times, inputs.odom_poses) if len(inputs.odom_times) >= 2 else (None, None)
-        return initial_pose_from_gps(inputs.gps_times, inputs.gps_xy, (config.sensor.offset_x, config.sensor.offset_y),
-                                     start, odom[0], odom[1])
+        return gps_start(inputs, config, start)
     x, y, yaw = parse_pose(mode)
     return InitialPose(x, y, yaw, start, "command line")
 
@@ -264,7 +263,30 @@ def ground_truth_start(inputs: BagInputs, start: float) -> InitialPose:
         raise ValueError(f"--initial-pose ground_truth: the bag has no {GT_POSE_TOPIC}")
     i = max(int(np.searchsorted(inputs.gt_pose_times, start + 1e-9)) - 1, 0)
     x, y, yaw = inputs.gt_poses[i]
-    return InitialPose(float(x), float(y), float(yaw), start, f"{GT_POSE_TOPIC} at {inputs.gt_pose_times[i]:.3f}")
+    return InitialPose(float(x), float(y), float(yaw), start, f"{GT_POSE_TOPIC} at {inputs.gt_pose_times[i]:.3f}",
+                       in_truth_frame=True)
+
+
+def truth_start(inputs: BagInputs, config: SlamConfig) -> InitialPose | None:
+    """Where the ground truth puts the robot at the first input: its pose topic, else the
+    GPS-derived pose (as ``--initial-pose gps``); None when the bag has neither (or the GPS
+    track cannot give a heading)."""
+    start = inputs.start if inputs.start is not None else 0.0
+    if len(inputs.gt_pose_times):
+        return ground_truth_start(inputs, start)
+    if not inputs.has_gps:
+        return None
+    try:
+        return gps_start(inputs, config, start)
+    except ValueError:
+        return None
+
+
+def gps_start(inputs: BagInputs, config: SlamConfig, start: float) -> InitialPose:
+    """The base pose at ``start`` from the GPS track (and the odometry's shape, when the bag has it)."""
+    odom = (inputs.odom_times, inputs.odom_poses) if len(inputs.odom_times) >= 2 else (None, None)
+    return initial_pose_from_gps(inputs.gps_times, inputs.gps_xy, (config.sensor.offset_x, config.sensor.offset_y),
+                                 start, odom[0], odom[1])
 
 
 # --------------------------------------------------------------------------- running
@@ -359,7 +381,8 @@ def run_one(inputs: BagInputs, config: SlamConfig, method: str, initial: Initial
     metrics = {"method": method, "bag": inputs.path, **(extra or {}),
                "seed": config.filter.seed, "num_particles": config.filter.num_particles,
                "motion_model": config.motion.model, "initial_pose": initial.to_dict()}
-    metrics.update(report.evaluate(result, inputs, config, match_gate, align))
+    frame = check_frame(initial, truth_start(inputs, config), match_gate)
+    metrics.update(report.evaluate(result, inputs, config, match_gate, align, frame))
     offset = (config.sensor.offset_x, config.sensor.offset_y)
     report.write_trajectory(output / "trajectory.csv", result.trajectory)
     write_run_tum(output, result.trajectory, offset, inputs.gps_times, inputs.gps_xy)   # TUM files for evo
@@ -370,9 +393,10 @@ def run_one(inputs: BagInputs, config: SlamConfig, method: str, initial: Initial
                                   metrics["noise_learned"])
     report.json_dump(output / "metrics.json", metrics)
     if plot:
-        lm = result.landmarks
-        plots.plot_map(output / "map.png", f"{method}: {Path(inputs.path).name}", result.trajectory,
-                       np.asarray(lm.positions).reshape(-1, 2), lm.ids,
+        lm = result.landmarks           # drawn where they were scored: in the ground-truth frame
+        trajectory = np.column_stack([result.trajectory[:, 0], poses_to_truth(frame, result.trajectory[:, 1:4])])
+        plots.plot_map(output / "map.png", f"{method}: {Path(inputs.path).name}", trajectory,
+                       points_to_truth(frame, lm.positions), lm.ids,
                        np.asarray(lm.n_obs) >= config.association.confirm_observations,
                        inputs.landmarks, inputs.gps_xy, offset)
     return metrics
