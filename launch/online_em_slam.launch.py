@@ -12,7 +12,10 @@
         params_file:=$(ros2 pkg prefix online_em_slam)/share/online_em_slam/config/car_park.yaml
 
 With ``bag`` set, ``use_sim_time`` is forced on for the node and RViz (the bag's
-/clock drives them).  RViz and ``ros2 bag play`` need a real Jazzy install (rviz2,
+/clock drives them).  Under a ``namespace`` RViz runs in it with the config's robot
+topics moved there (``online_em_slam.ros.rviz_config``); ``namespaced_tf:=true`` puts
+/tf and /tf_static in the namespace too (each robot its own TF tree, the nav2
+multi-robot recipe; see multi_robot.launch.py).  RViz and ``ros2 bag play`` need a real Jazzy install (rviz2,
 rosbag2); in the PyPI-wheels set-up use ``online-em-slam-replay BAG --clock`` and
 ``python -m online_em_slam.ros.node`` instead (README).
 """
@@ -20,7 +23,7 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, ExecuteProcess, TimerAction
+from launch.actions import DeclareLaunchArgument, ExecuteProcess, OpaqueFunction, TimerAction
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
@@ -33,7 +36,9 @@ def _arguments(share):
                               description="Use the /clock topic (bag replay, simulation)."),
         DeclareLaunchArgument("params_file", default_value=os.path.join(share, "config", "online_em_slam.yaml"),
                               description="Parameter YAML (/** + ros__parameters)."),
-        DeclareLaunchArgument("namespace", default_value="", description="Node namespace."),
+        DeclareLaunchArgument("namespace", default_value="", description="Node namespace (RViz follows it)."),
+        DeclareLaunchArgument("namespaced_tf", default_value="false",
+                              description="Remap /tf and /tf_static into the namespace (one TF tree per robot)."),
         DeclareLaunchArgument("autostart", default_value="true",
                               description="Configure and activate the lifecycle node at start."),
         DeclareLaunchArgument("use_lifecycle_manager", default_value="false",
@@ -44,13 +49,33 @@ def _arguments(share):
         DeclareLaunchArgument("log_level", default_value="info", description="Logging level."),
         DeclareLaunchArgument("rviz", default_value="false", description="Start RViz with rviz_config."),
         DeclareLaunchArgument("rviz_config", default_value=os.path.join(share, "rviz", "online_em_slam.rviz"),
-                              description="RViz configuration."),
+                              description="RViz configuration (its robot topics are moved into the namespace)."),
+        DeclareLaunchArgument("rviz_fixed_frame", default_value="",
+                              description="RViz fixed frame (empty: the config's, map)."),
         DeclareLaunchArgument("bag", default_value="",
                               description="Bag to play with `ros2 bag play --clock` (empty: none)."),
         DeclareLaunchArgument("bag_rate", default_value="1.0", description="Playback rate of the bag."),
         DeclareLaunchArgument("bag_delay", default_value="3.0",
                               description="Seconds before the bag starts (node and RViz subscribe first)."),
     ]
+
+
+def _tf_remappings():
+    """/tf and /tf_static into the namespace with namespaced_tf (else a no-op remap)."""
+    inside = PythonExpression(["'", LaunchConfiguration("namespaced_tf"), "'.lower() == 'true'"])
+    return [(topic, PythonExpression(["'", topic.lstrip("/"), "' if ", inside, " else '", topic, "'"]))
+            for topic in ("/tf", "/tf_static")]
+
+
+def _rviz(context, sim_time):
+    """RViz in the node's namespace, with the config's robot topics moved there."""
+    from online_em_slam.ros.rviz_config import write_namespaced_config
+    namespace = LaunchConfiguration("namespace").perform(context)
+    config = write_namespaced_config(LaunchConfiguration("rviz_config").perform(context), namespace,
+                                     LaunchConfiguration("rviz_fixed_frame").perform(context))
+    return [Node(package="rviz2", executable="rviz2", name="rviz2", namespace=namespace, output="log",
+                 arguments=["-d", config], parameters=[{"use_sim_time": sim_time}],
+                 remappings=_tf_remappings())]
 
 
 def generate_launch_description():
@@ -70,6 +95,7 @@ def generate_launch_description():
         package="online_em_slam", executable="online_em_slam_node", name="online_em_slam",
         namespace=LaunchConfiguration("namespace"), output="screen", emulate_tty=True,
         parameters=[LaunchConfiguration("params_file"), {"use_sim_time": sim_time, "autostart": self_start}],
+        remappings=_tf_remappings(),
         respawn=PythonExpression(["'", LaunchConfiguration("use_respawn"), "'.lower() == 'true'"]), respawn_delay=2.0,
         arguments=["--ros-args", "--log-level", LaunchConfiguration("log_level")])
     manager = Node(
@@ -79,10 +105,8 @@ def generate_launch_description():
                      "autostart": ParameterValue(PythonExpression(["'", autostart, "'.lower() == 'true'"]),
                                                  value_type=bool)}],
         condition=IfCondition(managed))
-    rviz = Node(
-        package="rviz2", executable="rviz2", name="rviz2", output="log",
-        arguments=["-d", LaunchConfiguration("rviz_config")], parameters=[{"use_sim_time": sim_time}],
-        condition=IfCondition(LaunchConfiguration("rviz")))
+    rviz = OpaqueFunction(function=_rviz, kwargs={"sim_time": sim_time},
+                          condition=IfCondition(LaunchConfiguration("rviz")))
     play = TimerAction(period=LaunchConfiguration("bag_delay"), actions=[ExecuteProcess(
         cmd=["ros2", "bag", "play", bag, "--clock", "--rate", LaunchConfiguration("bag_rate")],
         output="screen", condition=IfCondition(has_bag))])

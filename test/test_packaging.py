@@ -53,8 +53,49 @@ def test_launch_file_starts_node_rviz_and_bag_play():
     tree = ast.parse(text)
     assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description" for n in tree.body)
     for needle in ('"rviz2"', '"online_em_slam_node"', '"bag", "play"', '"--clock"', '"online_em_slam.rviz"',
-                   '"autostart"', '"use_lifecycle_manager"', '"use_respawn"', '"namespace"', '"lifecycle_manager"'):
+                   '"autostart"', '"use_lifecycle_manager"', '"use_respawn"', '"namespace"', '"lifecycle_manager"',
+                   '"namespaced_tf"', '"rviz_fixed_frame"', "write_namespaced_config"):
         assert needle in text, needle
+    assert _used_arguments(tree) <= _declared_arguments(tree)
+
+
+def _argument_names(tree, function: str) -> set[str]:
+    """The first argument of every call of ``function``: "name", or f"{robot}_x" for each robot."""
+    names = set()
+    for n in ast.walk(tree):
+        if isinstance(n, ast.Call) and getattr(n.func, "id", "") == function and n.args:
+            arg = n.args[0]
+            if isinstance(arg, ast.Constant):
+                names.add(arg.value)
+            else:                                   # f"{robot}_params_file"
+                names |= {ast.unparse(arg)[2:-1].replace("{robot}", r) for r in ("robot1", "robot2")}
+    return names
+
+
+def _declared_arguments(tree) -> set[str]:
+    return _argument_names(tree, "DeclareLaunchArgument")
+
+
+def _used_arguments(tree) -> set[str]:
+    return _argument_names(tree, "LaunchConfiguration")
+
+
+def test_multi_robot_launch_starts_two_namespaced_nodes():
+    """Issue 23 item 7: two nodes of online_em_slam.launch.py in namespaces robot1 and robot2, each
+    in its own launch scope, with their own TF trees and RViz; every argument it passes is one the
+    single-robot launch file declares, every one it reads is declared."""
+    tree = ast.parse((ROOT / "launch" / "multi_robot.launch.py").read_text())
+    single = ast.parse((ROOT / "launch" / "online_em_slam.launch.py").read_text())
+    assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description" for n in tree.body)
+    robots = next(n.value for n in tree.body if isinstance(n, ast.Assign) and n.targets[0].id == "ROBOTS")
+    assert ast.literal_eval(robots) == ("robot1", "robot2")
+    passed = {k.value for n in ast.walk(tree) if isinstance(n, ast.Dict) for k in n.keys if isinstance(k, ast.Constant)}
+    assert {"namespace", "params_file", "namespaced_tf", "rviz", "use_sim_time", "autostart"} <= passed
+    assert passed <= _declared_arguments(single)
+    assert _used_arguments(tree) <= _declared_arguments(tree)
+    assert {"robot1_params_file", "robot2_params_file", "namespaced_tf", "rviz"} <= _declared_arguments(tree)
+    text = (ROOT / "launch" / "multi_robot.launch.py").read_text()
+    assert '"online_em_slam.launch.py"' in text and "GroupAction(scoped=True" in text
 
 
 def test_setup_installs_launch_rviz_config_and_console_tools():
@@ -69,7 +110,7 @@ def test_setup_installs_launch_rviz_config_and_console_tools():
         os.chdir(cwd)
     files = {target: set(sources) for target, sources in dist.data_files}
     assert "rviz/online_em_slam.rviz" in files["share/online_em_slam/rviz"]
-    assert "launch/online_em_slam.launch.py" in files["share/online_em_slam/launch"]
+    assert {"launch/online_em_slam.launch.py", "launch/multi_robot.launch.py"} <= files["share/online_em_slam/launch"]
     scripts = {s.split("=")[0].strip() for s in dist.entry_points["console_scripts"]}
     assert {"online-em-slam-record", "online-em-slam-topic", "online-em-slam", "online-em-slam-replay",
             "online-em-slam-convert", "online-em-slam-demo"} <= scripts
