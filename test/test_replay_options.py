@@ -158,6 +158,7 @@ def test_live_replay_with_options(monkeypatch, tmp_path):
             proc.kill()
         rclpy.shutdown(context=context)
     assert proc.returncode == 0, err
+    assert "deprecated" not in err and "[rcl]" not in err, err     # --remap's OLD:=NEW is not rcl's (item 9)
     published = json.loads(out.strip().splitlines()[-1])["published"]
     assert "/landmark_observations" not in published and published["/control"] == N_CONTROL // 2
     assert len(got) == N_CONTROL // 2 and not clouds

@@ -155,7 +155,8 @@ def record(args, log) -> dict:
 
     stop = []
     context = rclpy.Context()
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    # Not sys.argv (every option is ours): rcl would parse any NAME:=VALUE in it as a remap.
+    rclpy.init(args=["online-em-slam-record"], context=context, signal_handler_options=SignalHandlerOptions.NO)
     # Our own handlers: a signal ends the loop so that the bag is closed properly.
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.append(True))
@@ -201,7 +202,8 @@ def _executor(context, node):
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     if Path(args.output).exists():
-        print(f"online-em-slam-record: error: {args.output} exists", file=sys.stderr)
+        print(f"online-em-slam-record: error: {args.output} exists (give a new OUTPUT; a bag is never "
+              "overwritten)", file=sys.stderr)
         return 1
 
     def log(text: str) -> None:

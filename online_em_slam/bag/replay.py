@@ -254,7 +254,9 @@ def _main(argv=None) -> int:
         if not args.quiet:
             print(text, file=sys.stderr, flush=True)
 
-    rclpy.init(args=None)
+    # Not sys.argv: rcl would read --remap's OLD:=NEW as its deprecated remap syntax and warn
+    # (every option is ours; argparse refuses --ros-args).
+    rclpy.init(args=["online-em-slam-replay"])
     node = rclpy.create_node("bag_replay")
     counts, skipped, elapsed, acked, exit_code = {}, {}, None, False, 0
     started = time.monotonic()

@@ -110,7 +110,7 @@ class _Session:
         from rclpy.executors import SingleThreadedExecutor
 
         self.context = rclpy.Context()
-        rclpy.init(context=self.context)
+        rclpy.init(args=["online-em-slam-topic"], context=self.context)   # not sys.argv: the options are ours
         self.node = rclpy.create_node(f"online_em_slam_topic_{os.getpid()}", context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
