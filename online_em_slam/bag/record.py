@@ -15,7 +15,8 @@ Topics by default: the node's outputs (``/NAME/pose``, ``path``, ``particles``,
 ``/ground_truth/*``; ``--no-inputs`` leaves those out).  A topic is subscribed
 once it has a publisher, with a QoS matching the publishers (latched topics are
 received and stored as latched).  Types that cannot be imported here are
-skipped with a message (``/tf`` needs tf2_msgs, see docs/NODE.md).  The log time is
+skipped with a message (``/tf`` needs tf2_msgs, built on first use where it is not
+installed: docs/NODE.md).  The log time is
 the receive time (the ROS clock with ``--use-sim-time``).  Ctrl-C, SIGTERM or
 ``--duration`` stop and close the bag; a per-topic count and one JSON line
 ``{"recorded": {...}, ...}`` are printed at the end.

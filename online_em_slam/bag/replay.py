@@ -19,7 +19,8 @@ remap, exclude, start paused) are described in :mod:`online_em_slam.bag.replay_o
 At the end the number of messages published per topic is printed, followed by
 one JSON line ``{"published": {...}, "skipped_topics": {...}, ...}`` on stdout.
 Topics whose message package is not importable are skipped with a one-line warning
-and listed under ``skipped_topics``.
+and listed under ``skipped_topics``; tf2_msgs (/tf, /tf_static), which is not on PyPI,
+is first built into the environment (once, about 30 s; :mod:`online_em_slam.messages.tf2_build`).
 
 A bad bag gets one line ``online-em-slam-replay: error: BAG: what is wrong`` on
 stderr and exit status 1, before any publisher exists (:func:`check_bag`): not a
@@ -38,6 +39,7 @@ import sys
 import time
 from pathlib import Path
 
+from ..messages.tf2_build import first_use
 from . import replay_options
 from .bagio import (BagError, absolute_topic, bag_error, check_bag_path, is_latched, node_topic_types,
                     type_problems)
@@ -50,7 +52,13 @@ def message_class(msgtype: str):
         parts = [parts[0], "msg", parts[1]]
     if len(parts) != 3 or not all(parts):
         raise ValueError(f"bad message type name {msgtype!r}")
-    module = importlib.import_module(f"{parts[0]}.{parts[1]}")
+    try:
+        module = importlib.import_module(f"{parts[0]}.{parts[1]}")
+    except ImportError:
+        # tf2_msgs is not on PyPI: in a wheels-only environment it is built here on first use.
+        if parts[0] != "tf2_msgs" or not first_use.ensure(log=lambda line: print(line, file=sys.stderr, flush=True)):
+            raise
+        module = importlib.import_module(f"{parts[0]}.{parts[1]}")
     return getattr(module, parts[2])
 
 

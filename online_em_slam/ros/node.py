@@ -7,8 +7,10 @@ Inputs
 Outputs
   ``~/pose`` ``~/path`` ``~/particles`` ``~/landmarks`` ``~/landmark_markers``,
   map -> odom (tf2_ros, else tf2_msgs/TFMessage on /tf, else ~/map_to_odom) and
-  /diagnostics.  Services ``~/reset`` ``~/pause`` ``~/save_map`` ``~/load_map`` (a file
-  name per call) and ``~/save_map_file`` ``~/load_map_file`` (``map_file``).
+  /diagnostics.  Without tf2_ros and tf2_msgs (PyPI wheels) ``main`` first builds
+  tf2_msgs into the environment, once (:mod:`online_em_slam.messages.tf2_build`).
+  Services ``~/reset`` ``~/pause`` ``~/save_map`` ``~/load_map`` (a file name per call)
+  and ``~/save_map_file`` ``~/load_map_file`` (``map_file``).
 
 The node holds the estimator, the settings and the shared state (lock, drop
 counters, pause) and wires its parts, one module each:
@@ -48,6 +50,7 @@ from rclpy.timer import Timer
 from std_msgs.msg import Header
 
 from ..core.filter.slam import OnlineEMSlam
+from ..messages.tf2_build.first_use import ensure as ensure_tf2_msgs
 from . import conversions as conv
 from .diagnostics import Diagnostics
 from .inputs import Inputs
@@ -316,6 +319,8 @@ def main(args=None) -> int:
     node = None
     code = 0
     try:
+        logger = rclpy.logging.get_logger("online_em_slam")
+        ensure_tf2_msgs(log=logger.info, warn=logger.warning)    # wheels-only environment: built once
         node = OnlineEmSlamNode()
         rclpy.spin(node)
     except ParameterError as error:     # one error line and status 1, as online-em-slam run

@@ -27,7 +27,8 @@ class TransformSender:
         except ImportError:
             pass
         publisher = node.create_publisher(TransformStamped, "~/map_to_odom", QoSProfile(depth=10))
-        self.kind = "geometry_msgs/TransformStamped on ~/map_to_odom (tf2_ros and tf2_msgs not importable)"
+        self.kind = ("geometry_msgs/TransformStamped on ~/map_to_odom (tf2_ros and tf2_msgs not importable; "
+                     "online-em-slam-tf2-msgs build builds tf2_msgs)")
         self._send = publisher.publish
 
     def send(self, transform: TransformStamped) -> None:
