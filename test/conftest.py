@@ -13,7 +13,7 @@ import pytest  # noqa: E402
 # tolerances hold on a machine that is not also filtering in another process.
 LIVE_MODULES = {"test_node", "test_node_inputs", "test_node_user", "test_node_lifecycle", "test_fuzz_node",
                 "test_reliability_node", "test_replay", "test_replay_options", "test_tools",
-                "test_tf_tree", "test_tf_sensor_pose", "test_tf_wheels", "test_overload_node"}
+                "test_tf_tree", "test_tf_sensor_pose", "test_tf_wheels"}
 
 
 def pytest_configure(config):

@@ -113,11 +113,6 @@ NODE_SPECS = (
               "input stream has delivered a message at least as recent (lossless at any replay rate); a "
               "stream silent for this long (wall-clock s) stops holding the others back. Must exceed the "
               "slowest input period (0: process each input on arrival).", 0.0, 10.0),
-    ParamSpec("max_input_lag", 1.0, "Bound on how far the estimate may run behind its inputs (s of stamp "
-              "time: sim time under use_sim_time), measured as the node's clock minus the input stamps "
-              "beyond each stream's own smallest delay: with best_effort inputs, observation updates more "
-              "than half of it behind are skipped (dropped.overload) so that motion, never skipped, keeps "
-              "up (0: never skip for lag).", 0.0, 3600.0),
     ParamSpec("reset_on_time_jump", True, "Restart the pose and the time line (keeping the map) when the clock "
               "or the input stamps jump back."),
     ParamSpec("time_jump_threshold", 1.0, "A backward jump of more than this (s), once confirmed, restarts the "
@@ -167,7 +162,6 @@ class NodeSettings:
     input_reliability: str = "best_effort"
     input_depth: int = 1000
     input_delay: float = 1.0
-    max_input_lag: float = 1.0
     reset_on_time_jump: bool = True
     time_jump_threshold: float = 1.0
     map_file: str = ""

@@ -1,8 +1,7 @@
 """The input pipeline: decoded inputs in, estimator updates out, one way.
 
-    push / heard / release / flush -> InputLag (how late inputs arrive)
-                                   -> InputPath (stamp checks, loss, merge)
-                                   -> load shedding (InputLag, LoadMonitor)
+    push / heard / release / flush -> InputPath (stamp checks, loss, merge)
+                                   -> load shedding (LoadMonitor)
                                    -> Feeder (with its Rollback) -> estimator
                                    -> on_applied(item, fed) per applied input,
                                       on_settled(used, observed) per batch
@@ -24,7 +23,6 @@ from typing import Callable
 from .feeder import Fed, Feeder
 from .input_path import InputPath
 from .inputs import CONTROL, OBSERVATIONS, ODOMETRY, Input
-from .lag import InputLag, StampClock
 from .load import LoadMonitor
 from .stamp_guard import Verdict
 
@@ -41,28 +39,20 @@ def merged_streams(motion_source: str) -> tuple[int, ...]:
 class InputPipeline:
     """Owns the input path, the feeder and load shedding of one estimator.
 
-    ``shedding``: skip observation updates while they run more than half of
-    ``max_lag`` behind their inputs (:class:`~.lag.InputLag`) or the load is
-    above its limit (best-effort inputs that would otherwise overflow; never for
-    lossless inputs); motion is never shed.  ``clock``: wall time for the load
-    (seconds, monotonic).  ``stamp_clock``: the time on the stamps' time line
-    now (the node's ROS clock; None: unknown), which shows the inputs waiting in
-    the node's own queues: while they arrive late, a stream that seems silent is
-    still waited for, so that no motion input comes out of order.  Without it
-    (offline) the lag is measured on what waits in the pipeline alone.
+    ``shedding``: skip observation updates while the load is above the limit
+    (best-effort inputs that would otherwise overflow; never for lossless
+    inputs).  ``clock``: wall time for the load (seconds, monotonic).
     """
 
     def __init__(self, estimator, motion_source: str, input_delay: float, jump_threshold: float, *,
                  restart_on_jump_back: bool = True, shedding: bool = False,
                  on_applied: Applied | None = None, on_settled: Settled | None = None,
-                 on_jump: Jumped | None = None, clock: Callable[[], float] = time.monotonic,
-                 max_lag: float = 0.0, stamp_clock: StampClock | None = None) -> None:
+                 on_jump: Jumped | None = None, clock: Callable[[], float] = time.monotonic) -> None:
         self.motion_kind = merged_streams(motion_source)[0]
         self.path = InputPath(merged_streams(motion_source), input_delay, jump_threshold,
                               restart_on_jump_back=restart_on_jump_back)
         self.feeder = Feeder(estimator, motion_source, self.path.drops)
         self.load = LoadMonitor()
-        self.lag = InputLag(max_lag, stamp_clock, ahead_tolerance=jump_threshold, silence=input_delay)
         self.max_load = 0.0
         self.shedding = shedding
         self.on_applied = on_applied
@@ -94,31 +84,21 @@ class InputPipeline:
     def set_input_delay(self, seconds: float) -> None:
         """How long the merge waits for a silent stream (the node's ``input_delay``, changed at run time)."""
         self.path.sequencer.silence = float(seconds)
-        self.lag.silence = float(seconds)
-
-    def set_max_lag(self, seconds: float) -> None:
-        """The lag bound (the node's ``max_input_lag``, changed at run time)."""
-        self.lag.set_limit(seconds)
 
     # ------------------------------------------------------------------ inputs
     def push(self, kind: int, stamp: float, payload, wall: float) -> None:
         """An input of a merged stream; applies whatever it releases."""
-        self._arrived(kind, stamp, wall)
         pushed = self.path.push(kind, stamp, payload, wall)
-        if pushed.jump is not None:
-            self.lag.reset()                      # a new time line: the ages start anew
         if pushed.jump is not None and self.on_jump is not None:
             self.on_jump(pushed.jump, pushed.restarted)
         self._apply(pushed.released)
 
     def heard(self, kind: int, stamp: float, wall: float) -> None:
         """A message with a usable stamp but an unusable payload: its stream is alive up to ``stamp``."""
-        self._arrived(kind, stamp, wall)
         self._apply(self.path.heard(kind, stamp, wall))
 
     def release(self, wall: float) -> None:
         """Apply the inputs that became safe because a stream went silent (call periodically)."""
-        self._judge_behind(wall)
         self._apply(self.path.release(wall))
 
     def flush(self) -> None:
@@ -132,15 +112,6 @@ class InputPipeline:
         """A periodic stream that is not merged: see :meth:`InputPath.watch`."""
         self.path.watch(kind, stamp)
 
-    def _arrived(self, kind: int, stamp: float, wall: float) -> None:
-        self.lag.arrived(kind, stamp, wall)
-        self._judge_behind(wall)
-
-    def _judge_behind(self, wall: float) -> None:
-        """Only the node's clock sees its own queues; offline nothing waits outside the pipeline."""
-        if self.lag.clock is not None:
-            self.path.sequencer.consumer_behind = self.lag.behind(wall)
-
     def busy(self, end: float, seconds: float) -> None:
         """``seconds`` of input handling that ended at ``end`` (clock time): the load."""
         self.load.add(end, seconds)
@@ -151,7 +122,6 @@ class InputPipeline:
         ``keep_inputs``: the path already restarted its time line (a confirmed jump back)."""
         if not keep_inputs:
             self.path.reset()
-        self.lag.reset()
         self.feeder.reset(estimator)
 
     def checkpoint(self) -> None:
@@ -162,7 +132,6 @@ class InputPipeline:
     def forget_time_line(self) -> None:
         """Trust the next stamps as they come (after a pause)."""
         self.path.forget_time_line()
-        self.lag.reset()
 
     # ------------------------------------------------------------------ into the estimator
     def _apply(self, released: list) -> None:
@@ -179,10 +148,7 @@ class InputPipeline:
             self.on_settled(used, observed)
 
     def _feed(self, item: Input) -> Fed:
-        lag = self.lag.applied(item.kind, item.stamp)
-        if item.kind != OBSERVATIONS:
-            return self.feeder.apply(item)
-        load = self.current_load()
+        load = self.current_load() if item.kind == OBSERVATIONS else 0.0
         self.max_load = max(self.max_load, load)
-        shed = self.shedding and (load > self.load.limit or self.lag.shed(lag))
+        shed = self.shedding and load > self.load.limit
         return self.feeder.apply(item, use_observations=not shed)

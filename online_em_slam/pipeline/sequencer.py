@@ -8,8 +8,7 @@ estimator the identical sequence.  Every message of a stream refreshes its
 liveness and advances its watermark, including empty clouds and messages that
 are dropped later, so a stream that reports "nothing seen" never holds the
 others back.  A stream silent for ``silence`` wall seconds stops holding the
-others back (unless the consumer is behind, ``consumer_behind``: its messages
-may then be waiting in the consumer's own queues, lag.InputLag); they then run ``SILENT_LAG_FACTOR * lag`` stamp seconds behind the
+others back; they then run ``SILENT_LAG_FACTOR * lag`` stamp seconds behind the
 newest input, where ``lag`` is how far behind the others that stream used to
 arrive, so a lagging detector that resumes after a silence is not dropped as
 late.  The remembered lag is a sample, not a bound: the executor's order and a
@@ -33,7 +32,6 @@ class Sequencer:
         self.streams = tuple(streams)
         self.silence = float(silence)        # <= 0: no reordering, release on arrival
         self.drops = drops if drops is not None else Counter()
-        self.consumer_behind = False         # the consumer's own queues hold messages: nobody is silent
         self.reset()
 
     def reset(self) -> None:
@@ -101,7 +99,7 @@ class Sequencer:
             if heard is None:
                 if wall - self._first_wall < self.silence:
                     marks.append(-math.inf)      # not heard yet: wait for it a while after start-up
-            elif wall - heard < self.silence or self.consumer_behind:
+            elif wall - heard < self.silence:
                 marks.append(self._newest[kind])
             else:
                 silent.append(kind)

@@ -107,8 +107,6 @@ class Diagnostics:
                 "queued_inputs": len(inputs.pipeline),
                 "load": inputs.pipeline.current_load(now),
                 "load_max": inputs.pipeline.max_load,
-                "input_lag": inputs.pipeline.lag.lag,           # s behind the inputs (stamp time)
-                "input_lag_max": inputs.pipeline.lag.max_lag,
                 "paused": node.paused,
                 "resets": self.resets,
                 "last_stamp": slam.last_stamp if slam.last_stamp is not None else -1.0,

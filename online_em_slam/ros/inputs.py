@@ -14,9 +14,8 @@ back.  Every message with a readable stamp tells the pipeline its stream is
 alive, used or not; an input that cannot be used is dropped and counted by
 reason, with a throttled warning.  When the node cannot keep up with
 best-effort inputs the pipeline sheds observation updates
-(``dropped.overload``) once they run more than half of ``max_input_lag``
-behind (the node's clock against the stamps), never motion; reliable inputs
-are never shed (the publisher waits).
+(``dropped.overload``), never motion; reliable inputs are never shed (the
+publisher waits).
 """
 from __future__ import annotations
 
@@ -54,8 +53,7 @@ class Inputs:
         self.pipeline = InputPipeline(node.slam, s.motion_source, s.input_delay, s.time_jump_threshold,
                                       restart_on_jump_back=s.reset_on_time_jump,
                                       shedding=self.sheds(s), on_applied=outputs.applied,
-                                      on_settled=outputs.settled, on_jump=self._on_jump,
-                                      max_lag=s.max_input_lag, stamp_clock=node.now_sec)
+                                      on_settled=outputs.settled, on_jump=self._on_jump)
         self.motion_kind = self.pipeline.motion_kind
         self.odom_sub = self.control_sub = self.obs_sub = None
         self._unheard_warned: set[str] = set()
@@ -99,7 +97,6 @@ class Inputs:
         """Parameters changed at run time: the merge window and shedding follow."""
         self.pipeline.set_input_delay(settings.input_delay)
         self.pipeline.shedding = self.sheds(settings)
-        self.pipeline.set_max_lag(settings.max_input_lag)
 
     def _events(self, topic: str) -> SubscriptionEventCallbacks:
         node = self.node
