@@ -159,3 +159,39 @@ def test_cofactor_inverse_matches_lapack():
     inverse, logdet = symmetric_inverse_3x3(P)
     np.testing.assert_allclose(inverse, np.linalg.inv(P), rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(logdet, np.linalg.slogdet(P)[1], atol=1e-10)
+
+
+@pytest.mark.parametrize("model", ["unicycle", "bicycle"])
+def test_relative_control_noise_matches_a_perturbed_command(model):
+    """sigma_u^2 = sigma^2 + (sigma_relative u)^2: the step covariance equals the spread of the
+    poses reached with commands perturbed by that noise (Monte Carlo through the model's mean)."""
+    rng = np.random.default_rng(5)
+    config = MotionConfig(model=model, wheelbase=2.0, sigma_speed=0.05, sigma_steering=0.01,
+                          sigma_speed_relative=0.2, sigma_steering_relative=0.4)
+    pose, u, dt = np.array([[1.0, -2.0, 0.3]]), np.array([1.5, 0.3]), 0.05
+    _, _, Q = motion.propagate(config, pose, u, dt)
+    scale = config.noise_reference_period / dt
+    stds = np.sqrt([(0.05 ** 2 + (0.2 * 1.5) ** 2) * scale, (0.01 ** 2 + (0.4 * 0.3) ** 2) * scale])
+    n = 200_000
+    commands = u + 1e-3 * stds * rng.standard_normal((n, 2))           # small: the model's linear range
+    silent = MotionConfig(model=model, wheelbase=2.0, sigma_speed=0.0, sigma_steering=0.0)
+    moved = motion.propagate(silent, np.repeat(pose, n, axis=0), commands, dt)[0]
+    scale_of = np.sqrt(np.outer(np.diag(Q[0]), np.diag(Q[0])))     # Monte Carlo error of each entry
+    np.testing.assert_allclose(np.cov(moved.T) / 1e-6 / scale_of, Q[0] / scale_of, atol=0.02)
+
+
+def test_relative_noise_is_off_by_default_and_joins_the_scaled_groups():
+    """Zero relative stds leave the covariance as before; motion_shape's groups of a controlled
+    model are the constant and the relative parts of speed and turning, the odometry model's two."""
+    config = MotionConfig(model="unicycle")
+    with_zero = MotionConfig(model="unicycle", sigma_speed_relative=0.0, sigma_steering_relative=0.0)
+    pose, u = np.zeros((1, 3)), np.array([1.0, 0.5])
+    np.testing.assert_array_equal(motion.propagate(config, pose, u, 0.1)[2], motion.propagate(with_zero, pose, u, 0.1)[2])
+    groups = motion.shape_groups(config)
+    assert groups[2:] == (("sigma_speed_relative",), ("sigma_steering_relative",))
+    assert len(motion.shape_groups(MotionConfig(model="odometry"))) == 2
+    basis = motion.shape_basis(config)
+    assert basis.sigma_steering_relative == motion.RELATIVE_UNIT
+    scaled = motion.scaled_groups(basis, groups, [1.0, 4.0, 1.0, 9.0])
+    assert scaled.sigma_steering == pytest.approx(2.0 * config.sigma_steering)
+    assert scaled.sigma_steering_relative == pytest.approx(3.0 * motion.RELATIVE_UNIT)

@@ -67,6 +67,12 @@ class MotionConfig:
     sigma_steering: float = param(math.pi / 60, *_STD, doc="Steering angle / yaw rate noise std (rad, rad/s) "
                                   "over noise_reference_period.")
     sigma_heading: float = param(0.0, *_STD, doc="Extra heading noise std (rad) over noise_reference_period.")
+    sigma_speed_relative: float = param(0.0, 0.0, 10.0, doc="Speed noise std per unit of speed (a fraction of "
+                                        "the speed) over noise_reference_period: a commanded speed is "
+                                        "delivered less exactly the faster it is (not the odometry model).")
+    sigma_steering_relative: float = param(0.0, 0.0, 10.0, doc="Steering angle / yaw rate noise std per unit of "
+                                           "steering or yaw rate (a fraction of it) over "
+                                           "noise_reference_period (not the odometry model).")
     noise_reference_period: float = param(0.2, 0.0, 100.0, lo_open=True, doc="Period (s) the control noise "
                                           "stds refer to; scaled as white noise for other control periods.")
     odometry_translation_std: float = param(0.01, *_STD,

@@ -24,9 +24,10 @@ class NoiseLearningConfig:
         observation errors are from one scan to the next: real detectors repeat
         their errors, so consecutive observations inform less than independent
         ones), ``motion_scale`` (one factor on the whole motion noise
-        covariance) and ``motion_shape`` (instead: one factor on the translation
-        noise and one on the rotation noise, so the starting values' ratio does
-        not stay; docs/METHOD.md "Motion shape").
+        covariance) and ``motion_shape`` (instead: one factor per noise group, for
+        a controlled model the speed's and the turning's constant and relative
+        parts, so the starting values' ratio does not stay; docs/METHOD.md
+        "Motion shape").
     step_size_exponent: gamma_n = n^-exponent (n counts observations) of the
         observation-noise statistics; below 1 the statistics computed under
         the first, wrong noise values are forgotten.
@@ -64,8 +65,8 @@ class NoiseLearningConfig:
                                    choices=LEARNABLE_NOISE, doc="Quantities learned: any of range, bearing, "
                                    "correlation, mixture (with noise.model mixture), dof (with noise.model "
                                    "student_t), range_growth, serial_correlation, motion_scale, motion_shape (a "
-                                   "scale on the translation and one on the rotation noise, instead of "
-                                   "motion_scale), motion_gains (the "
+                                   "scale per motion noise group: speed and turning, constant and relative "
+                                   "to the control, instead of motion_scale), motion_gains (the "
                                    "calibration of the motion input: motion.translation_gain, rotation_gain). "
                                    "To learn nothing set enabled false.")
     step_size_exponent: float = param(0.7, 0.5, 1.0, lo_open=True, doc="Step size gamma_n = n^-exponent of the "

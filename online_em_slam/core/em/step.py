@@ -51,7 +51,7 @@ class FilterStepData:
     motion_jacobian: np.ndarray
     motion_cov: np.ndarray
     motion_gain_sensitivity: np.ndarray | None = None
-    motion_cov_parts: np.ndarray | None = None     # (2, 3, 3): motion_cov's translation and rotation parts, unit scales
+    motion_cov_parts: np.ndarray | None = None     # (m, 3, 3): motion_cov's part from each noise group, unit scales
 
 
 class MStep(Protocol):

@@ -24,6 +24,8 @@ class PendingMotion:
     def __init__(self, pose: np.ndarray) -> None:
         self.controls: list[np.ndarray] = []
         self.dts: list[float] = []
+        # The track's covariance from each noise group (learner.motion_parts; sized at first use).
+        self.cov_parts = np.zeros((0, 3, 3))
         self.reset_track(pose)
 
     def reset_track(self, pose: np.ndarray) -> None:
@@ -31,7 +33,7 @@ class PendingMotion:
         self.pose = pose.copy()
         self.jacobian = np.eye(3)
         self.cov = np.zeros((3, 3))
-        self.cov_parts = np.zeros((2, 3, 3))      # the track's covariance from translation, rotation noise
+        self.cov_parts = np.zeros_like(self.cov_parts)
         self.sensitivity = np.zeros((3, 2))
 
     def queue(self, control: np.ndarray, dt: float) -> None:
@@ -53,6 +55,8 @@ class PendingMotion:
                        else self.sensitivity)
         cov_parts = self.cov_parts
         if parts is not None:            # the track's covariance split by noise group (motion shape learned)
+            if cov_parts.shape[0] != len(parts):
+                self.cov_parts = cov_parts = np.zeros((len(parts), 3, 3))
             cov_parts = np.stack([motion_models.integrate_segments(part, self.pose[None], self.cov_parts[k][None],
                                                                    controls, dts)[1][0]
                                   for k, part in enumerate(parts)])

@@ -40,15 +40,19 @@ def _noise_cov(G: np.ndarray, variances: np.ndarray) -> np.ndarray:
     return Q
 
 
-def _control_variances(config: MotionConfig, dt: float) -> np.ndarray:
+def _control_variances(config: MotionConfig, control: np.ndarray, dt: float) -> np.ndarray:
     """Per-step control variances, scaled as continuous-time white noise.
 
     sigma is specified for ``noise_reference_period`` seconds; per step of dt
     the variance is sigma^2 * ref / dt so that the integrated pose variance
-    per second does not depend on the control rate.
+    per second does not depend on the control rate.  Each control's sigma^2 is
+    a constant part plus a part proportional to the control's square,
+    sigma_u^2 = sigma^2 + (sigma_relative u)^2: a command's error grows with it.
     """
     scale = config.noise_reference_period / np.maximum(dt, 1e-6)
-    return np.stack([config.sigma_speed ** 2 * scale, config.sigma_steering ** 2 * scale], axis=-1)
+    speed = config.sigma_speed ** 2 + (config.sigma_speed_relative * control[..., 0]) ** 2
+    steering = config.sigma_steering ** 2 + (config.sigma_steering_relative * control[..., 1]) ** 2
+    return np.stack([speed * scale, steering * scale], axis=-1)
 
 
 def _heading_noise(config: MotionConfig, dt: float) -> float:
@@ -75,7 +79,7 @@ def bicycle(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: fl
     G = np.zeros((n, 3, 2))
     G[:, 0, 0], G[:, 1, 0], G[:, 2, 0] = dt * c, dt * s, dt * np.sin(psi) / B
     G[:, 0, 1], G[:, 1, 1], G[:, 2, 1] = -v * dt * s, v * dt * c, v * dt * np.cos(psi) / B
-    Q = _noise_cov(G, _control_variances(config, dt))
+    Q = _noise_cov(G, _control_variances(config, control, dt))
     Q[:, 2, 2] += _heading_noise(config, dt)
     return mean, F, Q
 
@@ -109,7 +113,7 @@ def acfr(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float
     G[:, 0, 0], G[:, 1, 0], G[:, 2, 0] = k * dt * c, k * dt * s, k * dt * tan_a / L
     G[:, 0, 1], G[:, 1, 1] = dvc_dalpha * dt * c, dvc_dalpha * dt * s
     G[:, 2, 1] = dt * (dvc_dalpha * tan_a + v_c * sec2) / L
-    Q = _noise_cov(G, _control_variances(config, dt))
+    Q = _noise_cov(G, _control_variances(config, control, dt))
     Q[:, 2, 2] += _heading_noise(config, dt)
     return mean, F, Q
 
@@ -130,7 +134,7 @@ def unicycle(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: f
     G = np.zeros((n, 3, 2))
     G[:, 0, 0], G[:, 1, 0] = dt * c, dt * s
     G[:, 0, 1], G[:, 1, 1], G[:, 2, 1] = -0.5 * v * dt * dt * s, 0.5 * v * dt * dt * c, dt
-    Q = _noise_cov(G, _control_variances(config, dt))
+    Q = _noise_cov(G, _control_variances(config, control, dt))
     Q[:, 2, 2] += _heading_noise(config, dt)
     return mean, F, Q
 
@@ -247,9 +251,46 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
 # and what drives the turning (steering or yaw rate, heading, rotation).  Every model's
 # G Q G^T is a sum of terms quadratic in one group's standard deviations, so scaling a
 # group's variances by a scales its share of the covariance by a, exactly.
-TRANSLATION_STDS = ("sigma_speed", "odometry_translation_std", "odometry_translation_per_meter")
-ROTATION_STDS = ("sigma_steering", "sigma_heading", "odometry_rotation_std", "odometry_rotation_per_radian",
-                 "odometry_rotation_per_meter")
+TRANSLATION_STDS = ("sigma_speed", "sigma_speed_relative", "odometry_translation_std",
+                    "odometry_translation_per_meter")
+ROTATION_STDS = ("sigma_steering", "sigma_steering_relative", "sigma_heading", "odometry_rotation_std",
+                 "odometry_rotation_per_radian", "odometry_rotation_per_meter")
+RELATIVE_STDS = ("sigma_speed_relative", "sigma_steering_relative")
+# A relative std configured at zero gives its learned scale this unit, where learning starts
+# (a fraction of the control; a zero would leave nothing to scale).  Wide on purpose: a
+# filter whose turning noise is too wide tracks, less precisely, until the learner narrows
+# it (and the warm-up replay filters the start again), one too narrow loses the heading
+# in the first turn the command misstates and the learner then learns from a lost
+# filter (MRCLAM Dataset 9, docs/RESULTS.md: 0.1 and 0.3 lose it, 0.5 and 1.0 do not).
+RELATIVE_UNIT = 0.5
+
+
+def shape_groups(config: MotionConfig) -> tuple[tuple[str, ...], ...]:
+    """The groups of motion noise whose variances motion_shape scales one by one.
+
+    A controlled model's noise is the speed's and the turning's, each a constant part and a
+    part relative to the control (four groups): a robot that drives straight most of the
+    time and turns now and then has a small constant turning noise and a large relative
+    one.  The odometry model's per-metre and per-radian stds add to its per-step std, not
+    to its variance, so its covariance splits into translation and rotation only.
+    """
+    if config.uses_odometry:
+        return TRANSLATION_STDS, ROTATION_STDS
+    return ("sigma_speed",), ("sigma_steering", "sigma_heading"), ("sigma_speed_relative",), \
+        ("sigma_steering_relative",)
+
+
+def shape_basis(config: MotionConfig) -> MotionConfig:
+    """``config`` with every relative std configured at zero at RELATIVE_UNIT: the noise the
+    learned group scales multiply (the odometry model has no relative stds)."""
+    zero = {name: RELATIVE_UNIT for name in RELATIVE_STDS if getattr(config, name) == 0.0}
+    return replace(config, **zero) if zero and not config.uses_odometry else config
+
+
+def scaled_groups(config: MotionConfig, groups: tuple[tuple[str, ...], ...], scales) -> MotionConfig:
+    """``config`` with group k's noise variances times scales[k]: its covariance is sum_k scales[k] Q_k."""
+    return replace(config, **{name: getattr(config, name) * float(np.sqrt(scale))
+                              for group, scale in zip(groups, scales) for name in group})
 
 
 def scaled_noise(config: MotionConfig, translation: float = 1.0, rotation: float = 1.0) -> MotionConfig:

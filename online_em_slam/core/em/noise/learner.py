@@ -38,14 +38,16 @@ import numpy as np
 
 from ...config import ObservationNoiseConfig, SlamConfig
 from ...models.angles import wrap_angle
-from ...models.motion import ROTATION_STDS, TRANSLATION_STDS, scaled_noise, step_jitter
+from ...models.motion import (ROTATION_STDS, TRANSLATION_STDS, scaled_groups, scaled_noise, shape_basis,
+                              shape_groups, step_jitter)
 from ...models.observation import information_noise, noise_covariance
 from ..observed_information import motion_residual
 from ..step import FilterStepData
 from ...weighted import weighted_pose_mean
 from .averages import StochasticAverage
 from .motion_gains import MotionGains, gain_statistic, move_towards
-from .motion_noise import MotionWindow, absolute_error, prediction_statistic, ratio_error, shape_statistic
+from .motion_noise import (MotionWindow, absolute_error, group_scales, prediction_statistic, ratio_error,
+                           shape_statistic)
 from .observation import UsedObservations, mixture_m_step, observation_statistics, student_t_dof
 from .range_fit import RangeBins, range_noise_fit
 from .serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation, whitened
@@ -101,11 +103,13 @@ class NoiseLearner:
         self._gain_warm = np.zeros(2, dtype=bool)        # each gain in use once known to the tolerance
         self._motion_config = (None, None)                # (gains and scales, the motion config with them)
         self._gains_config_made = (None, None)            # (gains, the configured motion config with them)
-        # The motion noise's shape (motion_shape): one scale on the translation noise, one on the rotation's.
+        # The motion noise's shape (motion_shape): one scale per noise group (models/motion.py
+        # shape_groups: speed and turning, constant and relative, for a controlled model).
         self.shape = "motion_shape" in learn
-        self.scales_in_use, self.scales_estimate = np.ones(2), np.ones(2)
+        self.groups = shape_groups(config.motion)
+        self.scales_in_use, self.scales_estimate = np.ones(len(self.groups)), np.ones(len(self.groups))
         self.shape_average = StochasticAverage(self.settings.motion_step_size_exponent)
-        self.parts = np.zeros((self.settings.motion_window + 1, 2, 3, 3))
+        self.parts = np.zeros((self.settings.motion_window + 1, len(self.groups), 3, 3))
         self._shape_warm = False
         self._parts_config = (None, None)
         self._start = config.noise                       # in use until warm: configured, or restored
@@ -187,13 +191,14 @@ class NoiseLearner:
         return 1.0 if self.shape else self.scale_in_use
 
     def motion_parts(self):
-        """With motion_shape: the gains' motion config with only the translation noise, and with
-        only the rotation noise (unit scales), for the track's covariance parts; else None."""
+        """With motion_shape: the gains' motion config with only one noise group's noise, per group
+        (unit scales), for the track's covariance parts; else None."""
         if not self.shape:
             return None
         base = self._gains_config()
         if self._parts_config[0] is not base:
-            self._parts_config = (base, (scaled_noise(base, 1.0, 0.0), scaled_noise(base, 0.0, 1.0)))
+            basis, unit = shape_basis(base), np.eye(len(self.groups))
+            self._parts_config = (base, tuple(scaled_groups(basis, self.groups, row) for row in unit))
         return self._parts_config[1]
 
     @property
@@ -206,7 +211,8 @@ class NoiseLearner:
         key = tuple(self.gains_in_use) + tuple(self.scales_in_use)
         if self._motion_config[0] != key:
             base = self._gains_config()
-            self._motion_config = (key, scaled_noise(base, *self.scales_in_use) if self.shape else base)
+            self._motion_config = (key, scaled_groups(shape_basis(base), self.groups, self.scales_in_use)
+                                   if self.shape else base)
         return self._motion_config[1]
 
     def _gains_config(self):
@@ -336,13 +342,10 @@ class NoiseLearner:
         if z is None:
             return
         self.shape_average.blend(z)
-        A, b = self.shape_average.value[:4].reshape(2, 2), self.shape_average.value[4:]
-        try:
-            estimate = np.linalg.solve(A, b)
-        except np.linalg.LinAlgError:
-            return
+        m = len(self.groups)
+        A, b = self.shape_average.value[:m * m].reshape(m, m), self.shape_average.value[m * m:]
         low, high = self.settings.motion_scale_limits
-        self.scales_estimate = np.clip(estimate, low, high)
+        self.scales_estimate = group_scales(A, b, low, high, self.scales_estimate)
         self._shape_warm = self._shape_warm or self.shape_average.count >= self.settings.warmup_steps
         if self._shape_warm:
             self.scales_in_use = self.scales_in_use * np.clip(self.scales_estimate / self.scales_in_use, *_SCALE_RATIO)
@@ -441,8 +444,8 @@ class NoiseLearner:
                   "noise.serial_correlation": [float(v) for v in noise.serial_correlation],
                   "noise.mixture_weights": [float(v) for v in noise.mixture_weights],
                   "noise.mixture_scales": [float(v) for v in noise.mixture_scales]}
-        scales = self.scales_in_use if self.shape else (self.motion_scale(), self.motion_scale())
-        motion = scaled_noise(self.config.motion, *scales)
+        motion = (scaled_groups(shape_basis(self.config.motion), self.groups, self.scales_in_use) if self.shape
+                  else scaled_noise(self.config.motion, self.motion_scale(), self.motion_scale()))
         values.update({f"motion.{name}": getattr(motion, name) for name in TRANSLATION_STDS + ROTATION_STDS})
         if self.gains is not None:
             values.update({"motion.translation_gain": float(self.gains_in_use[0]),

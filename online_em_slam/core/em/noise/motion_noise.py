@@ -10,6 +10,7 @@ calibration of the motion input.
 """
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -152,25 +153,71 @@ def prediction_statistic(steps: MotionSteps, pose_jacobian: np.ndarray, innovati
 
 def shape_statistic(steps: MotionSteps, parts: np.ndarray, pose_jacobian: np.ndarray, innovation: np.ndarray,
                     noise_cov: np.ndarray, scales: np.ndarray) -> np.ndarray | None:
-    """(A (2, 2) flattened, b (2,)) of the window's scan for the translation and rotation scales s:
+    """(A (m, m) flattened, b (m,)) of the window's scan for the scales s of m noise groups:
     E[nu^T W_j nu - tr(W_j K)] = sum_k s_k tr(W_j G_k), G_k = H_x Q_L^k H_x^T the window's motion
-    noise of group k at unit scale (``parts`` (L + 1, 2, 3, 3), per step), W_j = S^-1 G_j S^-1 at
-    the ``scales`` in use (the score's weights), K as in :func:`prediction_statistic`."""
+    noise of group k at unit scale (``parts`` (L + 1, m, 3, 3), per step), W_j = S^-1 G_j S^-1 at
+    the ``scales`` in use (the score's weights), K as in :func:`prediction_statistic`.  A group
+    the window did not excite (a robot that did not turn) has a zero row and column."""
+    m = parts.shape[1]
     C, _, J, Phi = compound(steps[1:])
     Hx = pose_jacobian.reshape(-1, 3)
     nu = innovation.reshape(-1) - Hx @ C
     G = [Hx @ compound(MotionSteps(steps.c[1:], steps.F[1:], parts[1:, k], steps.J[1:], steps.P[1:]))[1] @ Hx.T
-         for k in range(2)]
+         for k in range(m)]
     K = Hx @ (Phi @ steps.P[0] @ Phi.T + J) @ Hx.T + block_diagonal(noise_cov)
     try:
-        S_inv = np.linalg.inv(K + scales[0] * G[0] + scales[1] * G[1])
+        S_inv = np.linalg.inv(K + sum(scale * g for scale, g in zip(scales, G)))
     except np.linalg.LinAlgError:
         return None
     W = [S_inv @ g @ S_inv for g in G]
-    A = np.array([[np.trace(W[j] @ G[k]) for k in range(2)] for j in range(2)])
-    b = np.array([nu @ W[j] @ nu - np.trace(W[j] @ K) for j in range(2)])
+    A = np.array([[np.trace(W[j] @ G[k]) for k in range(m)] for j in range(m)])
+    b = np.array([nu @ W[j] @ nu - np.trace(W[j] @ K) for j in range(m)])
     z = np.concatenate([A.ravel(), b])
-    return z if np.all(np.isfinite(z)) and np.linalg.det(A) > 0 else None
+    return z if np.all(np.isfinite(z)) and np.trace(A) > 0 else None
+
+
+def group_scales(A: np.ndarray, b: np.ndarray, low: float, high: float, current: np.ndarray) -> np.ndarray:
+    """The scales s of the averaged system A s = b, each within [low, high].
+
+    A s = b is the gradient of q(s) = s^T A s / 2 - b^T s (A symmetric positive semi-definite),
+    so the bounded estimate minimises q over the box.  With a few groups every
+    split into groups at the floor, at the ceiling and free is tried (3^m small solves);
+    the feasible one with the least q wins.  Groups the data have not excited (zero
+    diagonal) keep ``current``; nearly collinear groups (a constant speed makes the
+    constant and the relative speed noise alike) then share what the data give them
+    without running off to opposite limits.
+    """
+    scales = np.array(current, dtype=float)
+    informed = np.flatnonzero(np.diag(A) > 0)
+    if informed.size == 0:
+        return scales
+    A_i, b_i = A[np.ix_(informed, informed)], b[informed]
+    try:
+        inside = np.linalg.solve(A_i, b_i)
+        if np.all(inside >= low) and np.all(inside <= high):        # the stationary point: the minimum
+            scales[informed] = inside
+            return scales
+    except np.linalg.LinAlgError:
+        pass
+    best, best_q = None, np.inf
+    for status in itertools.product((0, 1, 2), repeat=informed.size):       # 0 floor, 1 free, 2 ceiling
+        status = np.array(status)
+        s = np.where(status == 2, high, low).astype(float)
+        free = status == 1
+        if free.any():
+            fixed = ~free
+            try:
+                s[free] = np.linalg.solve(A_i[np.ix_(free, free)], b_i[free] - A_i[np.ix_(free, fixed)] @ s[fixed])
+            except np.linalg.LinAlgError:
+                continue
+            if np.any(s[free] < low) or np.any(s[free] > high):
+                continue
+        q = 0.5 * s @ A_i @ s - b_i @ s
+        if q < best_q:
+            best, best_q = s, q
+    if best is not None:
+        scales[informed] = best
+    return scales
 
 
 def block_diagonal(blocks: np.ndarray) -> np.ndarray:
