@@ -605,6 +605,36 @@ def test_the_replay_starts_from_the_motion_scale_estimate_once_it_is_known():
     assert slam._noise.scale_in_use == pytest.approx(slam._noise.scale_estimate, rel=0.2)
 
 
+def test_the_replay_starts_from_the_learned_motion_shape():
+    """start_from takes motion_shape's group scales (clipped to the limits), and the warm-up
+    replay hands it the estimates: the replay filters with the learned noise groups, not
+    from the starting ones again."""
+    from online_em_slam.core.filter.warmup import WarmupReplay
+    from online_em_slam.core.models.motion import RELATIVE_UNIT
+
+    base = SlamConfig()
+    config = replace(base, motion=replace(base.motion, model="unicycle"),
+                     noise_learning=replace(base.noise_learning, enabled=True, learn=("motion_shape",)))
+    learner = NoiseLearner(config)
+    learner.start_from(config.noise, 1.0, None, [4.0, 0.25, 1e-6, 9.0])
+    np.testing.assert_allclose(learner.scales_in_use, [4.0, 0.25, 0.01, 9.0])
+    motion = learner.motion_config()
+    assert motion.sigma_speed == pytest.approx(2.0 * base.motion.sigma_speed)
+    assert motion.sigma_steering_relative == pytest.approx(3.0 * RELATIVE_UNIT)
+
+    started = []
+    fresh = SimpleNamespace(start_from=lambda *args: started.append(args))
+    estimator = SimpleNamespace(drops={}, _noise=SimpleNamespace(
+        noise_config=lambda: config.noise, scale_estimate=1.0, gains_known=lambda: np.ones(2),
+        scales_estimate=np.array([2.0, 0.5, 0.1, 3.0])))
+
+    def reset(*_):
+        estimator._noise, estimator._warmup = fresh, WarmupReplay(False, 10, (None, None))
+    estimator.reset = reset
+    WarmupReplay(True, 10, (np.zeros(3), None)).replay(estimator)
+    np.testing.assert_allclose(started[0][3], [2.0, 0.5, 0.1, 3.0])
+
+
 def test_no_replay_after_a_relocalisation_or_beyond_the_input_cap():
     scenario = simulate(ScenarioConfig(seed=1, n_steps=600, **TRUTH))
     truth = slam_config_for(scenario, num_particles=20)

@@ -44,15 +44,16 @@ class WarmupReplay:
         """Restart ``estimator`` (an :class:`OnlineEMSlam`) at the start and filter the kept
         inputs again, the noise learner starting from the learned values; the drop
         counts stay those of the first pass (the replayed inputs were counted already)."""
-        # The motion scale's estimate, not the one in use: that one moves towards the
-        # estimate at a bounded rate and would filter the replay's first steps at the start value.
+        # The motion scales' estimates, not the ones in use: those move towards the
+        # estimates at a bounded rate and would filter the replay's first steps at the start values.
         learner = estimator._noise
         noise, scale, gains = learner.noise_config(), learner.scale_estimate, learner.gains_known()
+        scales = learner.scales_estimate.copy()
         inputs, drops = self.inputs, dict(estimator.drops)
         estimator.reset(*self.start)
         fresh = estimator._warmup
         fresh.discard()
-        estimator._noise.start_from(noise, scale, gains)
+        estimator._noise.start_from(noise, scale, gains, scales)
         for method, stamp, value in inputs:
             getattr(estimator, method)(stamp, value)
         estimator.drops.clear()

@@ -115,9 +115,11 @@ class NoiseLearner:
         self._start = config.noise                       # in use until warm: configured, or restored
         self._in_use = config.noise
 
-    def start_from(self, noise: ObservationNoiseConfig, motion_scale: float, motion_gains=None) -> None:
-        """Start from values learned earlier (a loaded map file) instead of the configured
-        ones: in use at once, then replaced by this run's estimates once they are warm."""
+    def start_from(self, noise: ObservationNoiseConfig, motion_scale: float, motion_gains=None,
+                   motion_scales=None) -> None:
+        """Start from values learned earlier (a loaded map file, the warm-up replay) instead of
+        the configured ones: in use at once, then replaced by this run's estimates once they are
+        warm.  ``motion_scales``: motion_shape's group scales."""
         if not self.learn:
             return
         observation = bool(self.learn & OBSERVATION_QUANTITIES)
@@ -126,6 +128,10 @@ class NoiseLearner:
         if "motion_scale" in self.learn:
             low, high = self.settings.motion_scale_limits
             self.scale_estimate = self.scale_in_use = _clip(motion_scale, low, high)
+        if self.shape and motion_scales is not None:
+            low, high = self.settings.motion_scale_limits
+            self.scales_in_use = np.clip(np.asarray(motion_scales, dtype=float), low, high)
+            self.scales_estimate = self.scales_in_use.copy()
         if self.gains is not None and motion_gains is not None:
             self.gains_in_use = np.clip(np.asarray(motion_gains, dtype=float), *self.settings.motion_gain_limits)
             self.gains_estimate = self.gains_in_use.copy()
