@@ -279,3 +279,38 @@ def test_replay_of_car_park_into_a_live_node_loses_nothing(tmp_path):
     positions = np.stack([cols["x"], cols["y"]], axis=1)[confirmed].astype(float)
     metrics = landmark_metrics(positions, inputs.landmarks, gate=2.0)
     assert metrics.n_matched == 15 and metrics.n_spurious <= 2 and metrics.rmse < 0.5
+
+
+def test_a_replay_stopped_by_sigint_while_publishing_reports_valid_json(tmp_path):
+    """ROS-conventions item 9: Ctrl-C in a script ends the replay with status 130, no traceback,
+    and a summary line that strict JSON reads (the wall time so far, not NaN).  The signal is
+    sent once the replay reports publishing (its progress line), not after a fixed delay."""
+    import signal
+    import threading
+
+    bag = tmp_path / "small"
+    write_small_bag(bag)
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="OFF", ROS_DOMAIN_ID=str(150 + os.getpid() % 50))
+    proc = subprocess.Popen([sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", "0.2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    lines, publishing = [], threading.Event()
+
+    def read_stderr():
+        for line in proc.stderr:
+            lines.append(line)
+            if line.startswith("replay: ") and " messages, bag time " in line:
+                publishing.set()
+    reader = threading.Thread(target=read_stderr, daemon=True)
+    reader.start()
+    assert publishing.wait(60.0), "".join(lines)
+    proc.send_signal(signal.SIGINT)
+    out = proc.stdout.read()
+    proc.wait(timeout=30)
+    reader.join(timeout=5)
+    err = "".join(lines)
+    assert proc.returncode == 130 and "Traceback" not in err, err
+
+    def no_constants(name):
+        raise ValueError(f"{name} is not JSON")
+    summary = json.loads(out.strip().splitlines()[-1], parse_constant=no_constants)
+    assert summary["interrupted"] and summary["wall_seconds"] > 0

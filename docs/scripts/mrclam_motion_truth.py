@@ -4,7 +4,8 @@ Vicon's orientation has glitches: steps of 0.9-3.1 rad within one 20 ms sample a
 (up to 175 in 600 s on Dataset 9). A yaw step faster than 4 rad/s (an iRobot Create turns at
 most about 2 rad/s) is dropped; a 1 s window with more than a fifth of its steps dropped is
 left out. Per run: the least-squares gain of the true yaw rate on the commanded one over
-1 s windows, the residual's standard deviation and kurtosis (3 for a Gaussian).
+1 s windows, the residual's standard deviation and kurtosis (3 for a Gaussian), and the
+gain of the windows turning in place (commanded speed below 1 cm/s) and while driving.
 
     python docs/scripts/mrclam_motion_truth.py [--data-dir ../shared/datasets/mrclam] [--seconds 600]
 """
@@ -29,14 +30,22 @@ def yaw_rate_windows(run, window=WINDOW):
     rate = wrap(np.diff(yaw)) / np.diff(gt)
     good = np.abs(rate) < MAX_RATE
     mid = 0.5 * (gt[1:] + gt[:-1])
-    true, cmd = [], []
+    true, cmd, speed = [], [], []
     for a in np.arange(max(t[0], gt[0]), min(t[-1], gt[-1]) - window, window):
         m = (mid >= a) & (mid < a + window)
         if m.sum() < 10 or good[m].mean() < 0.8:
             continue
         true.append(rate[m & good].mean())
         cmd.append(w[(t >= a) & (t < a + window)].mean())
-    return np.array(true), np.array(cmd), int((~good).sum())
+        speed.append(run.odometry_v[(t >= a) & (t < a + window)].mean())
+    return np.array(true), np.array(cmd), np.array(speed), int((~good).sum())
+
+
+def gain_of(true, cmd):
+    turning = np.abs(cmd) > 0.05
+    if turning.sum() < 5:
+        return "-"
+    return f"{np.sum(true[turning] * cmd[turning]) / np.sum(cmd[turning] ** 2):.2f}"
 
 
 def main():
@@ -44,15 +53,17 @@ def main():
     parser.add_argument("--data-dir", default="../shared/datasets/mrclam")
     parser.add_argument("--seconds", type=float, default=600.0)
     args = parser.parse_args()
-    print("| run | yaw-rate gain | residual sd (rad/s) | kurtosis | Vicon yaw glitches |")
-    print("|---|---|---|---|---|")
+    print("| run | yaw-rate gain | residual sd (rad/s) | kurtosis | Vicon yaw glitches | gain in place / driving |")
+    print("|---|---|---|---|---|---|")
     for d in (1, 9):
         for r in range(1, 6):
             run = load_mrclam(f"{args.data_dir}/MRCLAM_Dataset{d}.tar.xz", r, seconds=args.seconds)
-            true, cmd, glitches = yaw_rate_windows(run)
+            true, cmd, speed, glitches = yaw_rate_windows(run)
             gain = float(np.sum(true * cmd) / np.sum(cmd * cmd))
             res = true - gain * cmd
-            print(f"| D{d} R{r} | {gain:.2f} | {res.std():.3f} | {np.mean((res / res.std()) ** 4):.1f} | {glitches} |")
+            still = np.abs(speed) < 0.01
+            print(f"| D{d} R{r} | {gain:.2f} | {res.std():.3f} | {np.mean((res / res.std()) ** 4):.1f} | {glitches} "
+                  f"| {gain_of(true[still], cmd[still])} / {gain_of(true[~still], cmd[~still])} |")
 
 
 if __name__ == "__main__":
