@@ -119,3 +119,15 @@ def test_the_learner_finds_a_steering_gain_of_0_7_on_the_simulation():
     learned = slam.learned_noise()
     assert learned["motion_gains"][1] == pytest.approx(0.7, rel=0.05) and learned["motion_gains_in_use"][1]
     assert learned["motion_gains"][0] == pytest.approx(1.0, rel=0.05)
+
+
+def test_a_gain_is_used_once_known_or_once_the_data_reject_the_one_in_use():
+    """Known to the tolerance (0.03), or the estimate more than three standard errors from the
+    gain in use: 0.64 +- 0.05 against the configured 1.0 is used, 0.95 +- 0.05 is not yet."""
+    from online_em_slam.core.em.noise.motion_gains import known
+
+    in_use = np.ones(2)
+    np.testing.assert_array_equal(known(np.array([0.64, 0.95]), in_use, np.array([0.05, 0.05]), 0.03),
+                                  [True, False])
+    np.testing.assert_array_equal(known(np.array([0.99, 1.2]), in_use, np.array([0.02, 0.2]), 0.03),
+                                  [True, False])

@@ -45,7 +45,7 @@ from ..observed_information import motion_residual
 from ..step import FilterStepData
 from ...weighted import weighted_pose_mean
 from .averages import StochasticAverage
-from .motion_gains import MotionGains, gain_statistic, move_towards
+from .motion_gains import MotionGains, gain_statistic, known, move_towards
 from .motion_noise import (MotionWindow, absolute_error, group_scales, prediction_statistic, ratio_error,
                            shape_statistic)
 from .observation import UsedObservations, mixture_m_step, observation_statistics, student_t_dof
@@ -381,7 +381,8 @@ class NoiseLearner:
         estimate, self.gain_errors = result
         self.gains_estimate = np.clip(estimate, *self.settings.motion_gain_limits)
         if self.gains.count >= self.settings.warmup_steps:
-            self._gain_warm |= self.gain_errors <= self.settings.motion_gain_tolerance
+            self._gain_warm |= known(self.gains_estimate, self.gains_in_use, self.gain_errors,
+                                     self.settings.motion_gain_tolerance)
         target = np.where(self._gain_warm, self.gains_estimate, self.gains_in_use)
         self.gains_in_use = move_towards(self.gains_in_use, target, _SCALE_RATIO)
 

@@ -29,6 +29,8 @@ from .averages import StochasticAverage
 from .motion_noise import MotionSteps, block_diagonal, compound
 
 MAX_CONDITION = 1e6                   # N (unit diagonal) solved only when both gains are informed
+# A learned gain replaces the one in use once they differ by this many standard errors.
+REJECTION = 3.0
 
 
 def transported(F: np.ndarray, terms: np.ndarray) -> np.ndarray:
@@ -88,6 +90,14 @@ class MotionGains:
         N_inv = np.linalg.inv(N)
         variance = self.window * self.average.squared_weights * np.diag(N_inv)
         return N_inv @ h, np.sqrt(np.maximum(variance, 0.0))
+
+
+def known(estimate: np.ndarray, in_use: np.ndarray, errors: np.ndarray, tolerance: float) -> np.ndarray:
+    """Which gains to use (2,): known to ``tolerance``, or the data reject the gain in use by
+    more than REJECTION standard errors (a command's calibration can be far off, 0.6 on MRCLAM
+    Dataset 9, and yet not known to the tolerance in a whole run: the regimes of turning in
+    place and while driving differ)."""
+    return (errors <= tolerance) | (np.abs(estimate - in_use) > REJECTION * errors)
 
 
 def move_towards(in_use: np.ndarray, target: np.ndarray, ratio: tuple[float, float]) -> np.ndarray:
