@@ -113,7 +113,8 @@ class NoiseLearningConfig:
                                                     "learned motion gains (motion.translation_gain, "
                                                     "rotation_gain), floor <= ceiling.")
     motion_gain_tolerance: float = param(0.03, 0.0, 1.0, lo_open=True, doc="The learned motion gains are used "
-                                         "once their standard errors are below this (and warmup_steps have "
+                                         "once their standard errors are below this, or once the estimate is "
+                                         "three standard errors from the gain in use (and warmup_steps have "
                                          "passed).")
     _LIMITS = ("sigma_range_limits", "sigma_bearing_limits", "range_growth_limits", "mixture_weight_limits",
                "mixture_scale_limits", "dof_limits", "motion_scale_limits",
