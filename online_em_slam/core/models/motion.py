@@ -50,9 +50,12 @@ def _control_variances(config: MotionConfig, control: np.ndarray, dt: float) -> 
     sigma_u^2 = sigma^2 + (sigma_relative u)^2: a command's error grows with it.
     """
     scale = config.noise_reference_period / np.maximum(dt, 1e-6)
-    speed = config.sigma_speed ** 2 + (config.sigma_speed_relative * control[..., 0]) ** 2
-    steering = config.sigma_steering ** 2 + (config.sigma_steering_relative * control[..., 1]) ** 2
-    return np.stack([speed * scale, steering * scale], axis=-1)
+    speed, steering = config.sigma_speed ** 2, config.sigma_steering ** 2
+    if config.sigma_speed_relative:              # off by default: the constant noise alone
+        speed = speed + (config.sigma_speed_relative * control[..., 0]) ** 2
+    if config.sigma_steering_relative:
+        steering = steering + (config.sigma_steering_relative * control[..., 1]) ** 2
+    return np.stack(np.broadcast_arrays(speed * scale, steering * scale), axis=-1)
 
 
 def _heading_noise(config: MotionConfig, dt: float) -> float:
@@ -298,9 +301,7 @@ def scaled_noise(config: MotionConfig, translation: float = 1.0, rotation: float
     rotation group's times ``rotation``: its covariance is translation Q_T + rotation Q_R."""
     if translation == 1.0 and rotation == 1.0:
         return config
-    a, b = float(np.sqrt(translation)), float(np.sqrt(rotation))
-    return replace(config, **{name: getattr(config, name) * a for name in TRANSLATION_STDS},
-                   **{name: getattr(config, name) * b for name in ROTATION_STDS})
+    return scaled_groups(config, (TRANSLATION_STDS, ROTATION_STDS), (translation, rotation))
 
 
 def step_jitter(config: MotionConfig) -> np.ndarray:

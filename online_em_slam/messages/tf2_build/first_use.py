@@ -48,21 +48,13 @@ class Place:
 
     prefix: Path
 
-    @property
-    def workdir(self) -> Path:
-        return self.prefix / "build" / "tf2_msgs"
+    def _build(self, suffix: str) -> Path:
+        return self.prefix / "build" / f"tf2_msgs{suffix}"
 
-    @property
-    def log(self) -> Path:
-        return self.prefix / "build" / "tf2_msgs.log"
-
-    @property
-    def lock(self) -> Path:
-        return self.prefix / "build" / "tf2_msgs.lock"
-
-    @property
-    def failed(self) -> Path:
-        return self.prefix / "build" / "tf2_msgs.failed"
+    workdir = property(lambda self: self._build(""))
+    log = property(lambda self: self._build(".log"))
+    lock = property(lambda self: self._build(".lock"))
+    failed = property(lambda self: self._build(".failed"))
 
 
 @contextlib.contextmanager
