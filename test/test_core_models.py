@@ -147,8 +147,24 @@ def test_noise_covariance_is_g_diag_q_g_transpose():
     rng = np.random.default_rng(3)
     G = rng.standard_normal((40, 3, 2))
     variances = rng.random(2)
-    np.testing.assert_allclose(motion._noise_cov(G, variances),
+    entries = [(G[:, a, 0], G[:, a, 1]) for a in range(3)]
+    np.testing.assert_allclose(motion._noise_cov(entries, variances),
                                (G * variances) @ np.swapaxes(G, 1, 2), atol=1e-14)
+
+
+@pytest.mark.parametrize("model", ["bicycle", "acfr", "unicycle", "odometry"])
+def test_segment_factors_give_the_model_yaw_increment(model):
+    """integrate_segments takes the yaw steps from a model's control factors (first entry):
+    the model's own yaw increment, for controls one per row or broadcast over poses."""
+    rng = np.random.default_rng(5)
+    config = MotionConfig(model=model, wheelbase=2.83)
+    width = 3 if model == "odometry" else 2
+    controls = rng.normal(size=(4, width)) + 0.5
+    dts = rng.uniform(0.01, 0.2, size=4)
+    segment, _ = motion.SEGMENT_PARTS[model]
+    yaw_steps = segment(config, controls[:, None, :], dts[:, None])[0][:, 0]
+    moved = [motion.MODELS[model](config, np.zeros((1, 3)), u, dt)[0][0, 2] for u, dt in zip(controls, dts)]
+    np.testing.assert_array_equal(yaw_steps, moved)
 
 
 def test_cofactor_inverse_matches_lapack():

@@ -26,17 +26,20 @@ from .angles import wrap_angle
 from ..config import MOTION_MODELS, MotionConfig
 
 
-def _noise_cov(G: np.ndarray, variances: np.ndarray) -> np.ndarray:
-    """G diag(variances) G^T for G (N, 3, k), variances (k,) or (N, k).
+def _noise_cov(G, variances: np.ndarray) -> np.ndarray:
+    """G diag(variances) G^T (..., 3, 3) from G's entries ``G[a][j]`` (a: x, y, yaw; j: the two
+    controls), each broadcastable to the batch, and ``variances`` (..., 2).
 
-    Summed entry by entry: for thousands of 3 x k matrices that is several
-    times faster than a batched matmul.
+    Entry by entry over the batch: for hundreds of 3 x 2 matrices far fewer and cheaper
+    numpy calls than a batched matmul.
     """
-    GV = G * variances[..., None, :]
-    Q = np.empty(G.shape[:-1] + (3,))
-    for a in range(3):
-        for b in range(a, 3):
-            Q[:, a, b] = Q[:, b, a] = (GV[:, a, :] * G[:, b, :]).sum(axis=-1)
+    v = (variances[..., 0], variances[..., 1])
+    GV = [(row[0] * v[0], row[1] * v[1]) for row in G]
+    entries = {(a, b): GV[a][0] * G[b][0] + GV[a][1] * G[b][1] for a in range(3) for b in range(a, 3)}
+    Q = np.empty(np.broadcast_shapes(*(e.shape for e in entries.values())) + (3, 3))
+    for (a, b), value in entries.items():
+        Q[..., a, b] = Q[..., b, a] = value
+    Q += 0.0        # a zero entry is +0.0, as numpy's sum over the two controls makes it
     return Q
 
 
@@ -62,29 +65,72 @@ def _heading_noise(config: MotionConfig, dt: float) -> float:
     return config.sigma_heading ** 2 * dt / config.noise_reference_period
 
 
+# Every model is two functions (integrate_segments evaluates them once per flush): the
+# control's factors, ``_<model>_segment(config, control, dt)``, its yaw increment first (no
+# model's depends on the pose); and ``_<model>_moves(config, factors, yaw)``, from the
+# headings yaw (...) the move (dx, dy, dyaw), the lever (s_x, s_y) = d position / d yaw and
+# G Q G^T (..., 3, 3).  The model itself, (config, poses, control, dt) -> (f(X, u), F, G Q G^T),
+# composes them (``_on_poses``).
+
+
+def _on_poses(poses: np.ndarray, move, lever, Q: np.ndarray):
+    """(f(X, u), F, G Q G^T) for poses (N, 3) from a model's move, lever and noise."""
+    mean = poses.copy()
+    mean[:, 0] += move[0]
+    mean[:, 1] += move[1]
+    mean[:, 2] += move[2]
+    F = np.broadcast_to(np.eye(3), (poses.shape[0], 3, 3)).copy()
+    F[:, 0, 2], F[:, 1, 2] = lever
+    return mean, F, Q
+
+
+def _bicycle_segment(config: MotionConfig, control: np.ndarray, dt):
+    v, psi = control[..., 0], control[..., 1]
+    B, step, sin_psi = config.wheelbase, v * dt, np.sin(psi)
+    return (step * sin_psi / B, psi, step, dt * sin_psi / B, step * np.cos(psi) / B,
+            _control_variances(config, control, dt), _heading_noise(config, dt), dt)
+
+
+def _bicycle_moves(config: MotionConfig, factors, yaw: np.ndarray):
+    dyaw, psi, step, g_yaw_v, g_yaw_psi, variances, heading_var, dt = factors
+    heading = yaw + psi
+    c, s = np.cos(heading), np.sin(heading)
+    dx, dy = step * c, step * s
+    Q = _noise_cov(((dt * c, -dy), (dt * s, dx), (g_yaw_v, g_yaw_psi)), variances)
+    Q[..., 2, 2] += heading_var
+    return (dx, dy, dyaw), (-dy, dx), Q
+
+
 def bicycle(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):
     """Seed bicycle model, control u = (v, psi), wheelbase B (docs/METHOD.md, "Model"):
 
     X' = X + (v dt cos(phi + psi), v dt sin(phi + psi), v dt sin(psi) / B).
     """
-    v, psi = control[..., 0], control[..., 1]
-    B = config.wheelbase
-    heading = poses[:, 2] + psi
-    c, s = np.cos(heading), np.sin(heading)
-    n = poses.shape[0]
-    mean = poses.copy()
-    mean[:, 0] += v * dt * c
-    mean[:, 1] += v * dt * s
-    mean[:, 2] += v * dt * np.sin(psi) / B
-    F = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-    F[:, 0, 2] = -v * dt * s
-    F[:, 1, 2] = v * dt * c
-    G = np.zeros((n, 3, 2))
-    G[:, 0, 0], G[:, 1, 0], G[:, 2, 0] = dt * c, dt * s, dt * np.sin(psi) / B
-    G[:, 0, 1], G[:, 1, 1], G[:, 2, 1] = -v * dt * s, v * dt * c, v * dt * np.cos(psi) / B
-    Q = _noise_cov(G, _control_variances(config, control, dt))
-    Q[:, 2, 2] += _heading_noise(config, dt)
-    return mean, F, Q
+    return _on_poses(poses, *_bicycle_moves(config, _bicycle_segment(config, control, dt), poses[:, 2]))
+
+
+def _acfr_segment(config: MotionConfig, control: np.ndarray, dt):
+    v_e, alpha = control[..., 0], control[..., 1]
+    L, H = config.wheelbase, config.encoder_offset
+    tan_a = np.tan(alpha)
+    sec2 = 1.0 + tan_a ** 2
+    denom = 1.0 - tan_a * H / L
+    k = 1.0 / denom
+    v_c = v_e * k
+    dvc_dalpha = v_e * (H / L) * sec2 / denom ** 2
+    step = v_c * dt
+    return (step * tan_a / L, step, k * dt, dvc_dalpha * dt, k * dt * tan_a / L,
+            dt * (dvc_dalpha * tan_a + v_c * sec2) / L, _control_variances(config, control, dt),
+            _heading_noise(config, dt))
+
+
+def _acfr_moves(config: MotionConfig, factors, yaw: np.ndarray):
+    dyaw, step, k_dt, dvc_dt, g_yaw_v, g_yaw_alpha, variances, heading_var = factors
+    c, s = np.cos(yaw), np.sin(yaw)
+    dx, dy = step * c, step * s
+    Q = _noise_cov(((k_dt * c, dvc_dt * c), (k_dt * s, dvc_dt * s), (g_yaw_v, g_yaw_alpha)), variances)
+    Q[..., 2, 2] += heading_var
+    return (dx, dy, dyaw), (-dy, dx), Q
 
 
 def acfr(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):
@@ -95,51 +141,28 @@ def acfr(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float
     The laser point of the dataset README's model is this pose plus the sensor
     offset (a, b), so the observation model carries the lever arm.
     """
-    v_e, alpha = control[..., 0], control[..., 1]
-    L, H = config.wheelbase, config.encoder_offset
-    tan_a = np.tan(alpha)
-    sec2 = 1.0 + tan_a ** 2
-    denom = 1.0 - tan_a * H / L
-    k = 1.0 / denom
-    v_c = v_e * k
-    dvc_dalpha = v_e * (H / L) * sec2 / denom ** 2
-    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    n = poses.shape[0]
-    mean = poses.copy()
-    mean[:, 0] += v_c * dt * c
-    mean[:, 1] += v_c * dt * s
-    mean[:, 2] += v_c * dt * tan_a / L
-    F = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-    F[:, 0, 2] = -v_c * dt * s
-    F[:, 1, 2] = v_c * dt * c
-    G = np.zeros((n, 3, 2))
-    G[:, 0, 0], G[:, 1, 0], G[:, 2, 0] = k * dt * c, k * dt * s, k * dt * tan_a / L
-    G[:, 0, 1], G[:, 1, 1] = dvc_dalpha * dt * c, dvc_dalpha * dt * s
-    G[:, 2, 1] = dt * (dvc_dalpha * tan_a + v_c * sec2) / L
-    Q = _noise_cov(G, _control_variances(config, control, dt))
-    Q[:, 2, 2] += _heading_noise(config, dt)
-    return mean, F, Q
+    return _on_poses(poses, *_acfr_moves(config, _acfr_segment(config, control, dt), poses[:, 2]))
+
+
+def _unicycle_segment(config: MotionConfig, control: np.ndarray, dt):
+    v, omega = control[..., 0], control[..., 1]
+    return (omega * dt, 0.5 * omega * dt, v * dt, 0.5 * v * dt * dt, _control_variances(config, control, dt),
+            _heading_noise(config, dt), dt)
+
+
+def _unicycle_moves(config: MotionConfig, factors, yaw: np.ndarray):
+    dyaw, half_turn, step, half_step_dt, variances, heading_var, dt = factors
+    heading = yaw + half_turn
+    c, s = np.cos(heading), np.sin(heading)
+    dx, dy = step * c, step * s
+    Q = _noise_cov(((dt * c, -(half_step_dt * s)), (dt * s, half_step_dt * c), (0.0, dt)), variances)
+    Q[..., 2, 2] += heading_var
+    return (dx, dy, dyaw), (-dy, dx), Q
 
 
 def unicycle(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):
     """Control u = (v, omega): X' = X + (v dt cos(phi + omega dt / 2), v dt sin(.), omega dt)."""
-    v, omega = control[..., 0], control[..., 1]
-    heading = poses[:, 2] + 0.5 * omega * dt
-    c, s = np.cos(heading), np.sin(heading)
-    n = poses.shape[0]
-    mean = poses.copy()
-    mean[:, 0] += v * dt * c
-    mean[:, 1] += v * dt * s
-    mean[:, 2] += omega * dt
-    F = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-    F[:, 0, 2] = -v * dt * s
-    F[:, 1, 2] = v * dt * c
-    G = np.zeros((n, 3, 2))
-    G[:, 0, 0], G[:, 1, 0] = dt * c, dt * s
-    G[:, 0, 1], G[:, 1, 1], G[:, 2, 1] = -0.5 * v * dt * dt * s, 0.5 * v * dt * dt * c, dt
-    Q = _noise_cov(G, _control_variances(config, control, dt))
-    Q[:, 2, 2] += _heading_noise(config, dt)
-    return mean, F, Q
+    return _on_poses(poses, *_unicycle_moves(config, _unicycle_segment(config, control, dt), poses[:, 2]))
 
 
 def odometry_increment(previous: np.ndarray, current: np.ndarray) -> np.ndarray:
@@ -150,38 +173,41 @@ def odometry_increment(previous: np.ndarray, current: np.ndarray) -> np.ndarray:
     return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_angle(current[2] - previous[2])])
 
 
-def odometry(config: MotionConfig, poses: np.ndarray, increment: np.ndarray, dt: float):
-    """Odometry increment u = (dx, dy, dphi) in the previous body frame:
-
-    X' = X + (R(phi) (dx, dy), dphi), noise in the body frame with standard
-    deviations growing with the distance and angle travelled.
-    """
+def _odometry_segment(config: MotionConfig, increment: np.ndarray, dt):
     dx, dy, dphi = increment[..., 0], increment[..., 1], increment[..., 2]
     dist = np.hypot(dx, dy)
-    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    n = poses.shape[0]
-    mean = poses.copy()
-    mean[:, 0] += c * dx - s * dy
-    mean[:, 1] += s * dx + c * dy
-    mean[:, 2] += dphi
-    F = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-    F[:, 0, 2] = -s * dx - c * dy
-    F[:, 1, 2] = c * dx - s * dy
     # A robot standing still gets no odometry noise (only the per-step jitter).
     moved = (dist > 0) | (dphi != 0)
     sig_t = np.where(moved, config.odometry_translation_std, 0.0) + config.odometry_translation_per_meter * dist
     sig_r = (np.where(moved, config.odometry_rotation_std, 0.0)
              + config.odometry_rotation_per_radian * abs(dphi)
              + config.odometry_rotation_per_meter * dist)
-    Q = np.zeros((n, 3, 3))
+    return dphi, dx, dy, sig_t ** 2, sig_r ** 2 + _heading_noise(config, dt)
+
+
+def _odometry_moves(config: MotionConfig, factors, yaw: np.ndarray):
+    dphi, dx, dy, var_t, var_r = factors
+    c, s = np.cos(yaw), np.sin(yaw)
+    Q = np.zeros(np.broadcast_shapes(c.shape, np.shape(var_t)) + (3, 3))
     # Isotropic translation noise is invariant under the body-to-world rotation.
-    Q[:, 0, 0] = Q[:, 1, 1] = sig_t ** 2
-    Q[:, 2, 2] = sig_r ** 2 + _heading_noise(config, dt)
-    return mean, F, Q
+    Q[..., 0, 0] = Q[..., 1, 1] = var_t
+    Q[..., 2, 2] = var_r
+    return (c * dx - s * dy, s * dx + c * dy, dphi), (-s * dx - c * dy, c * dx - s * dy), Q
 
 
-# The equations of every model of the registry (config.MOTION_INPUTS): the function of its name.
+def odometry(config: MotionConfig, poses: np.ndarray, increment: np.ndarray, dt: float):
+    """Odometry increment u = (dx, dy, dphi) in the previous body frame:
+
+    X' = X + (R(phi) (dx, dy), dphi), noise in the body frame with standard
+    deviations growing with the distance and angle travelled.
+    """
+    return _on_poses(poses, *_odometry_moves(config, _odometry_segment(config, increment, dt), poses[:, 2]))
+
+
+# The equations of every model of the registry (config.MOTION_INPUTS): the function of its name,
+# and its two parts (control factors, moves from headings) for integrate_segments.
 MODELS = {name: globals()[name] for name in MOTION_MODELS}
+SEGMENT_PARTS = {name: (globals()[f"_{name}_segment"], globals()[f"_{name}_moves"]) for name in MOTION_MODELS}
 
 
 def calibrated(config: MotionConfig, control: np.ndarray) -> np.ndarray:
@@ -221,7 +247,9 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
     the yaw increment does not depend on the pose, so every heading along the
     way is known up front, and the Jacobians are I + s_k e_yaw^T, so
     P_K = A_0 P_0 A_0^T + sum_k A_k Q_k A_k^T with A_k = I + (sum_{j>k} s_j) e_yaw^T.
-    With ``with_jacobian`` the compounded Jacobian A_0 (N, 3, 3) is returned too.
+    The model's control factors are computed once per segment (K, 1) and its moves once,
+    on the (K, N) headings.  With ``with_jacobian`` the compounded Jacobian A_0 (N, 3, 3)
+    is returned too.
     """
     controls = calibrated(config, controls)
     dts = np.asarray(dts, dtype=float)
@@ -229,20 +257,21 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
     if k == 0:
         identity = np.broadcast_to(np.eye(3), covariances.shape).copy()
         return (poses, covariances, identity) if with_jacobian else (poses, covariances)
-    model = MODELS[config.model]
-    yaw_steps = model(config, np.zeros((k, 3)), controls, dts)[0][:, 2]
+    segment, moves = SEGMENT_PARTS[config.model]
+    factors = segment(config, controls[:, None, :], dts[:, None])             # (K, 1) each
+    yaw_steps = np.zeros(k) + factors[0][:, 0]
     yaw_before = np.concatenate([[0.0], np.cumsum(yaw_steps)[:-1]])
-    before = np.zeros((k, n, 3))
-    before[..., 2] = poses[None, :, 2] + yaw_before[:, None]
-    flat = before.reshape(-1, 3)
-    mean, F, Q = model(config, flat, np.repeat(controls, n, axis=0), np.repeat(dts, n))
-    moves = (mean - flat).reshape(k, n, 3)
+    (dx, dy, _), lever, Q = moves(config, factors, poses[None, :, 2] + yaw_before[:, None])   # (K, N)
     new = poses.copy()
-    new[:, :2] += moves[..., :2].sum(axis=0)
+    new[:, 0] += dx.sum(axis=0)
+    new[:, 1] += dy.sum(axis=0)
     new[:, 2] += yaw_steps.sum()
-    s = F[:, :2, 2].reshape(k, n, 2)
-    from_k = np.cumsum(s[::-1], axis=0)[::-1]           # sum_{j >= k} s_j
-    cov = _through_lever(covariances, from_k[0]) + _through_lever(Q.reshape(k, n, 3, 3), from_k - s).sum(axis=0)
+    s = np.stack(lever, axis=-1)                                              # (K, N, 2)
+    from_k = np.cumsum(s[::-1], axis=0)[::-1] if k > 1 else s                 # sum_{j >= k} s_j
+    # One segment: nothing after it, its noise enters as it is (+ 0.0: the zero lever's signed zeros).
+    noise = _through_lever(Q, from_k - s).sum(axis=0) if k > 1 else Q[0] + 0.0
+    # A zero P_0 (every flush right after a filter step) gives zero through the lever.
+    cov = _through_lever(covariances, from_k[0]) + noise if covariances.any() else noise + 0.0
     if not with_jacobian:
         return new, cov
     jacobian = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
