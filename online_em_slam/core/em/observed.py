@@ -20,7 +20,6 @@ from ..mapping.landmarks import LandmarkTable
 from ..models.observation import inv_det_2x2, landmark_jacobian, sensor_poses
 from .observed_information import ObservedInformation, StepFactors, motion_residual
 from ..models.gaussian import symmetric_inverse_3x3
-from ..weighted import weighted_pose_mean
 from .statistics import STAT_DIM, unpack
 
 # Under heavy-tailed noise a landmark's first observation cannot be checked against anything:
@@ -78,7 +77,7 @@ class ObservedInformationEM:
         noise a landmark's first observation enters the map's system with
         FIRST_OBSERVATION_WEIGHT (the gate's per-landmark information keeps it in full).
         """
-        pose = weighted_pose_mean(data.particles, data.weights)
+        pose = data.pose_mean()
         precision = np.einsum("n,npij->pij", data.weights, data.precision)
         if data.rows.size:
             H = landmark_jacobian(sensor_poses(pose, self.config.sensor)[None], table.theta[data.rows])

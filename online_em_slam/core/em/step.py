@@ -13,6 +13,7 @@ from typing import Protocol
 import numpy as np
 
 from ..mapping.landmarks import LandmarkTable
+from ..weighted import weighted_pose_mean
 
 
 @dataclass
@@ -52,6 +53,13 @@ class FilterStepData:
     motion_cov: np.ndarray
     motion_gain_sensitivity: np.ndarray | None = None
     motion_cov_parts: np.ndarray | None = None     # (m, 3, 3): motion_cov's part from each noise group, unit scales
+    mean_pose: np.ndarray | None = None            # (3,): pose_mean(), once computed
+
+    def pose_mean(self) -> np.ndarray:
+        """The weighted mean pose xbar_t (3,), circular mean for the yaw; computed once per step."""
+        if self.mean_pose is None:
+            self.mean_pose = weighted_pose_mean(self.particles, self.weights)
+        return self.mean_pose
 
 
 class MStep(Protocol):

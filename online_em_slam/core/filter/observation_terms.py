@@ -42,23 +42,16 @@ def observation_terms(y: np.ndarray, R: np.ndarray, theta_bar: np.ndarray, senso
     to weight (``weighting`` (P,)); ``landmark_cov`` (P, 2, 2), when given, is the
     landmarks' uncertainty, whose H Sigma_k H^T the innovation covariance then carries too.
     """
-    n = sensor.shape[0]
-    nu = innovation(np.broadcast_to(y, (n,) + y.shape).copy(),
-                    predict_observation(sensor[:, None, :], theta_bar[None]))        # (N, P, 2)
+    nu = innovation(y, predict_observation(sensor[:, None, :], theta_bar[None]))       # (N, P, 2)
     H = landmark_jacobian(sensor[:, None, :], theta_bar[None])                      # (N, P, 2, 2)
-    log_likelihood = _weighting_loglik(noise, weighting, nu, H, R, landmark_cov)
-    _, resp = noise_loglik(noise, nu, np.broadcast_to(R, H.shape))
+    # R (P, 2, 2) broadcasts over the particles: the noise law's d2 and log det take its
+    # inverse once per observation, not once per particle and observation.
+    loglik, resp = noise_loglik(noise, nu, R)
+    if landmark_cov is not None and weighting.any():
+        loglik, _ = noise_loglik(noise, nu, R + H @ landmark_cov[None] @ np.swapaxes(H, -1, -2))
+    log_likelihood = (np.where(weighting[None, :], loglik, 0.0).sum(axis=1) if weighting.any()
+                      else np.zeros(nu.shape[0]))
     R_inv, _ = inv_det_2x2(R)
     precision = R_inv[None] * component_precision_weight(noise, resp)[..., None, None]
     return ObservationTerms(y, R, nu, H, precision, log_likelihood)
 
-
-def _weighting_loglik(noise, weighting, nu, H, R, landmark_cov) -> np.ndarray:
-    """log g(y | xi^i, theta) summed over the ``weighting`` landmarks (N,)."""
-    if not weighting.any():
-        return np.zeros(nu.shape[0])
-    S = np.broadcast_to(R, H.shape).copy()
-    if landmark_cov is not None:
-        S += H @ landmark_cov[None] @ np.swapaxes(H, -1, -2)
-    loglik, _ = noise_loglik(noise, nu, S)
-    return np.where(weighting[None, :], loglik, 0.0).sum(axis=1)

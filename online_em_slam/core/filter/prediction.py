@@ -62,7 +62,7 @@ class PendingMotion:
                                   for k, part in enumerate(parts)])
         self.controls.clear()
         self.dts.clear()
-        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov)) and np.all(np.isfinite(sensitivity))):
+        if not (np.isfinite(mean).all() and np.isfinite(cov).all() and np.isfinite(sensitivity).all()):
             # Never let one step poison the estimate: keep the last finite state.
             drops["non_finite_prediction"] += 1
             return None

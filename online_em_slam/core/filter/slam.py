@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
+from functools import cache, partial
 
 import numpy as np
 
@@ -281,7 +282,7 @@ class OnlineEMSlam:
         if not self._relocalising:      # a cloud still looking for its pose teaches neither map nor noise
             self._noise.update(data, self._map.n_obs[rows], self._map.ids[rows])   # noise statistics (em/noise/)
             pose_correction = self._m_step.update(data, self._map)
-        self._commit(particles, weights, pose_correction)
+        self._commit(particles, weights, pose_correction, data)
         if self._relocalising and rows.size:
             self._relocalising = not localised(particles, weights, self.config.filter.relocalisation_tolerance)
         report.n_associated = int(rows.size)
@@ -339,16 +340,18 @@ class OnlineEMSlam:
             motion_cov=self._motion.cov * self._noise.motion_scale() + motion_models.step_jitter(self.config.motion),
             motion_gain_sensitivity=self._motion.sensitivity, motion_cov_parts=self._motion.cov_parts)
 
-    def _commit(self, particles, weights, pose_correction) -> None:
+    def _commit(self, particles, weights, pose_correction, data: FilterStepData) -> None:
         """New anchors for the next transition, moved by the M-step's pose correction."""
+        mean = data.pose_mean
         if pose_correction is not None:
             particles = particles + pose_correction
             particles[:, 2] = wrap_angle(particles[:, 2])
+            mean = partial(weighted_pose_mean, particles, weights)
         self._particles = particles
         self._log_w = np.log(np.maximum(weights, 1e-300))
         self._pred_mean = particles.copy()
         self._pred_cov = np.zeros_like(self._pred_cov)
-        self._motion.reset_track(weighted_pose_mean(particles, weights))
+        self._motion.reset_track(mean())
         self._ess = effective_sample_size(weights)
         self._resample_pending = self._ess < self.config.filter.resample_threshold * particles.shape[0]
         self._anchor_time = self._input.last_stamp
@@ -359,13 +362,13 @@ class OnlineEMSlam:
                    report: StepReport) -> tuple[np.ndarray, np.ndarray]:
         """Pairs (observation index, landmark row); creates landmarks as needed."""
         w = prior_weights / prior_weights.sum()
-        mean_sensor = weighted_pose_mean(sensor, w)
+        mean_sensor = cache(lambda: weighted_pose_mean(sensor, w))       # only unknown ids and creations need it
         y = np.stack([obs.ranges, obs.bearings], axis=-1)
 
         def candidates(unknown):
             noise = self._noise.noise_config()
             reach = self.config.sensor.max_range + 5.0 * noise.sigma_range + 5.0
-            rows = candidate_rows(self._map.theta, mean_sensor, reach)
+            rows = candidate_rows(self._map.theta, mean_sensor(), reach)
             if not rows.size:
                 return rows, np.zeros((0, 2)), np.zeros((unknown.size, 0, 2, 2))
             R = noise_covariance(noise, obs.ranges[unknown],
@@ -386,14 +389,17 @@ class OnlineEMSlam:
         return (np.concatenate([plan.update_obs, plan.create_obs[:new_rows.size]]),
                 np.concatenate([plan.update_rows, new_rows]).astype(int))
 
-    def _create_landmarks(self, plan, y: np.ndarray, mean_sensor: np.ndarray, drop) -> np.ndarray:
-        """Landmarks for the plan's creations (association.creations), none while relocalising;
-        their rows.  The kept creations are the first entries of ``plan.create_obs`` afterwards."""
+    def _create_landmarks(self, plan, y: np.ndarray, mean_sensor, drop) -> np.ndarray:
+        """Landmarks for the plan's creations (association.creations) at ``mean_sensor()``, none
+        while relocalising; their rows.  The kept creations are the first entries of
+        ``plan.create_obs`` afterwards."""
+        if not plan.create_obs.size:
+            return np.zeros(0, dtype=int)
         if self._relocalising:
             drop("relocalising", len(plan.create_obs))
             return np.zeros(0, dtype=int)
         radius = 2.0 * self._noise.noise_config().sigma_range
-        positions, ids = creations(plan, y, mean_sensor, self._map, self.config.association, radius, drop,
+        positions, ids = creations(plan, y, mean_sensor(), self._map, self.config.association, radius, drop,
                                    self.drops)
         return self._add_landmarks(positions, np.array(ids)) if ids else np.zeros(0, dtype=int)
 

@@ -19,6 +19,7 @@ received between two scans in one vectorised pass.
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -260,22 +261,25 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
     segment, moves = SEGMENT_PARTS[config.model]
     factors = segment(config, controls[:, None, :], dts[:, None])             # (K, 1) each
     yaw_steps = np.zeros(k) + factors[0][:, 0]
-    yaw_before = np.concatenate([[0.0], np.cumsum(yaw_steps)[:-1]])
+    yaw_before = np.concatenate([[0.0], np.cumsum(yaw_steps)[:-1]]) if k > 1 else np.zeros(1)
     (dx, dy, _), lever, Q = moves(config, factors, poses[None, :, 2] + yaw_before[:, None])   # (K, N)
     new = poses.copy()
     new[:, 0] += dx.sum(axis=0)
     new[:, 1] += dy.sum(axis=0)
     new[:, 2] += yaw_steps.sum()
-    s = np.stack(lever, axis=-1)                                              # (K, N, 2)
-    from_k = np.cumsum(s[::-1], axis=0)[::-1] if k > 1 else s                 # sum_{j >= k} s_j
-    # One segment: nothing after it, its noise enters as it is (+ 0.0: the zero lever's signed zeros).
-    noise = _through_lever(Q, from_k - s).sum(axis=0) if k > 1 else Q[0] + 0.0
+    if k > 1:
+        s = np.stack(lever, axis=-1)                                          # (K, N, 2)
+        from_k = np.cumsum(s[::-1], axis=0)[::-1]                             # sum_{j >= k} s_j
+        noise, total = _through_lever(Q, from_k - s).sum(axis=0), from_k[0]
+    else:      # nothing after the one segment: its noise as it is (+ 0.0: the zero lever's signed zeros)
+        noise, total = Q[0] + 0.0, np.stack([lever[0][0], lever[1][0]], axis=-1)
     # A zero P_0 (every flush right after a filter step) gives zero through the lever.
-    cov = _through_lever(covariances, from_k[0]) + noise if covariances.any() else noise + 0.0
+    cov = _through_lever(covariances, total) + noise if covariances.any() else noise + 0.0
     if not with_jacobian:
         return new, cov
-    jacobian = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-    jacobian[:, :2, 2] = from_k[0]
+    jacobian = np.zeros((n, 3, 3))
+    jacobian[:, 0, 0] = jacobian[:, 1, 1] = jacobian[:, 2, 2] = 1.0
+    jacobian[:, :2, 2] = total
     return new, cov, jacobian
 
 
@@ -334,5 +338,12 @@ def scaled_noise(config: MotionConfig, translation: float = 1.0, rotation: float
 
 
 def step_jitter(config: MotionConfig) -> np.ndarray:
-    """Diagonal covariance added once per filter step so that (T) is never degenerate."""
-    return np.diag([config.position_jitter ** 2, config.position_jitter ** 2, config.heading_jitter ** 2])
+    """Diagonal covariance added once per filter step so that (T) is never degenerate (read-only)."""
+    return _jitter(config.position_jitter, config.heading_jitter)
+
+
+@lru_cache(maxsize=16)
+def _jitter(position: float, heading: float) -> np.ndarray:
+    jitter = np.diag([position ** 2, position ** 2, heading ** 2])
+    jitter.setflags(write=False)
+    return jitter

@@ -43,7 +43,6 @@ from ...models.motion import (ROTATION_STDS, TRANSLATION_STDS, scaled_groups, sc
 from ...models.observation import information_noise, noise_covariance
 from ..observed_information import motion_residual
 from ..step import FilterStepData
-from ...weighted import weighted_pose_mean
 from .averages import StochasticAverage
 from .motion_gains import MotionGains, gain_statistic, known, move_towards
 from .motion_noise import (MotionWindow, absolute_error, group_scales, prediction_statistic, ratio_error,
@@ -246,7 +245,7 @@ class NoiseLearner:
         weighed = information_noise(self._in_use)
         configured, R_filter = self._configured_R(data, weighed)
         use = (n_obs >= self.settings.min_landmark_observations) & configured
-        pose = weighted_pose_mean(data.particles, data.weights)
+        pose = data.pose_mean()
         # The statistics take the same observations under the same (current) estimate; once
         # warm that is the noise in use, whose R (elementwise in the ranges) the filter made
         # already unless it weighed it for serially correlated errors.
