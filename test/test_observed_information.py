@@ -56,7 +56,7 @@ def _feed(est, xbar, controls, observations, segment_length, maps):
         rows, y = observations[t - 1]
         precision = np.broadcast_to(np.linalg.inv(R), (rows.size, 2, 2)).copy()
         est.add_step(StepFactors(xbar[t], F, motion_residual(predicted, xbar[t]),
-                                 np.linalg.inv(Q), rows, y, precision))
+                                 Q, rows, y, precision))
         if t % segment_length == 0:
             est.close_segment(next(maps))
     return est

@@ -26,7 +26,7 @@ def _segment(rng, poses, m, observed):
         rows = rng.choice(m, size=min(observed, m), replace=False)
         F = np.eye(3)
         F[:2, 2] = rng.normal(0, 0.5, 2)
-        steps.append(StepFactors(pose, F, rng.normal(0, 0.01, 3), np.diag([400.0, 400.0, 4e4]), rows,
+        steps.append(StepFactors(pose, F, rng.normal(0, 0.01, 3), np.diag([1 / 400.0, 1 / 400.0, 1 / 4e4]), rows,
                                  np.column_stack([rng.uniform(2, 30, rows.size), rng.uniform(-1, 1, rows.size)]),
                                  np.broadcast_to(np.diag([4.0, 1000.0]), (rows.size, 2, 2)).copy()))
     return steps

@@ -19,7 +19,6 @@ from .step import FilterStepData
 from ..mapping.landmarks import LandmarkTable
 from ..models.observation import inv_det_2x2, landmark_jacobian, sensor_poses
 from .observed_information import ObservedInformation, StepFactors, motion_residual
-from ..models.gaussian import symmetric_inverse_3x3
 from .statistics import STAT_DIM, unpack
 
 # Under heavy-tailed noise a landmark's first observation cannot be checked against anything:
@@ -85,8 +84,7 @@ class ObservedInformationEM:
             if self.config.noise.model != "gaussian":
                 first = table.n_obs[data.rows] == 1                  # counted already: this is the first
                 precision = np.where(first[:, None, None], FIRST_OBSERVATION_WEIGHT * precision, precision)
-        W = symmetric_inverse_3x3(data.motion_cov[None])[0][0]
-        return StepFactors(pose, data.motion_jacobian, motion_residual(data.motion_mean, pose), W,
+        return StepFactors(pose, data.motion_jacobian, motion_residual(data.motion_mean, pose), data.motion_cov,
                            data.rows.copy(), data.y.copy(), precision)
 
     def _segment_ends(self, step: int) -> bool:

@@ -35,6 +35,7 @@ import numpy as np
 from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 from ..models.angles import wrap_angle
+from ..models.gaussian import symmetric_inverse_3x3
 from ..config import SensorConfig
 from ..models.observation import innovation, landmark_jacobian, pose_jacobian, predict_observation, sensor_poses
 
@@ -48,14 +49,15 @@ MIN_PRIOR_STD = np.array([1e-3, 1e-3, 1e-4])
 class StepFactors:
     """The factors one filter step adds: motion from the previous pose, observations at this pose.
 
-    pose (3,) linearisation point xbar_t; F (3, 3), c (3,), W (3, 3) of (M);
+    pose (3,) linearisation point xbar_t; F (3, 3), c (3,) and Q (3, 3) of (M), whose information
+    W = Q^-1 the segment's close takes for all its steps at once;
     rows (P,) landmark rows, y (P, 2) observations, precision (P, 2, 2) Pbar of (O).
     """
 
     pose: np.ndarray
     F: np.ndarray
     c: np.ndarray
-    W: np.ndarray
+    Q: np.ndarray
     rows: np.ndarray
     y: np.ndarray
     precision: np.ndarray
@@ -167,7 +169,7 @@ class ObservedInformation:
             step = np.diff(firsts[:, :2], axis=0)
             F = F.copy()
             F[:, 0, 2], F[:, 1, 2] = -step[:, 1], step[:, 0]
-        W = np.stack([s.W for s in self.segment])
+        W = symmetric_inverse_3x3(np.stack([s.Q for s in self.segment]))[0]
         c = np.stack([s.c for s in self.segment])
         J = np.concatenate([-F, np.broadcast_to(np.eye(POSE_DIM), F.shape)], axis=-1)   # (K, 3, 6)
         index = POSE_DIM * np.arange(len(self.segment))[:, None] + np.arange(2 * POSE_DIM)

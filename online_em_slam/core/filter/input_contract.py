@@ -134,10 +134,11 @@ def usable_observations(obs: Observations, sensor: SensorConfig, cap: int) -> tu
     std_ok = obs.valid_std()
     in_range = valid & std_ok & (obs.ranges >= max(sensor.min_range, 0.0)) & (obs.ranges <= sensor.max_range)
     dropped: dict[str, int] = {}
-    for reason, mask in (("invalid_observation", ~valid), ("invalid_std", valid & ~std_ok),
-                         ("observation_out_of_range", valid & std_ok & ~in_range)):
-        if mask.any():
-            dropped[reason] = int(mask.sum())
+    if not in_range.all():                    # else every point is usable: nothing to count
+        for reason, mask in (("invalid_observation", ~valid), ("invalid_std", valid & ~std_ok),
+                             ("observation_out_of_range", valid & std_ok & ~in_range)):
+            if mask.any():
+                dropped[reason] = int(mask.sum())
     if in_range.sum() > cap:
         beyond = np.flatnonzero(in_range)[cap:]
         in_range[beyond] = False

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from functools import cache, partial
+from functools import cache
 
 import numpy as np
 
@@ -268,9 +268,9 @@ class OnlineEMSlam:
         """One particle-filter step and EM update (docs/METHOD.md, "Filter step")."""
         report = report if report is not None else StepReport()
         self._flush_motion()
-        ancestors, log_prior = self._select_ancestors()
         trans_cov = self._pred_cov * self._noise.motion_scale() + motion_models.step_jitter(self.config.motion)
-        particles = sample_gaussians(self._pred_mean[ancestors], trans_cov[ancestors], self._rng)
+        ancestors, log_prior, means, covs = self._select_ancestors(trans_cov)
+        particles = sample_gaussians(means, covs, self._rng)
         sensor = sensor_poses(particles, self.config.sensor)
         prior_weights, _ = normalize_log_weights(log_prior)
         rows, obs_idx = self._associate_scan(obs, sensor, prior_weights, report)
@@ -288,12 +288,14 @@ class OnlineEMSlam:
         report.n_associated = int(rows.size)
         report.n_pruned = self._prune_tentative()
 
-    def _select_ancestors(self) -> tuple[np.ndarray, np.ndarray]:
-        """Ancestor indices and prior log-weights; resampling was decided on the last ESS."""
+    def _select_ancestors(self, trans_cov: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Ancestor indices, prior log-weights and the ancestors' transitions (means, ``trans_cov``);
+        resampling was decided on the last ESS."""
         n = self._particles.shape[0]
-        if self._resample_pending:
-            return systematic_resample(np.exp(self._log_w), self._rng), np.full(n, -np.log(n))
-        return np.arange(n), self._log_w
+        if not self._resample_pending:
+            return np.arange(n), self._log_w, self._pred_mean, trans_cov
+        ancestors = systematic_resample(np.exp(self._log_w), self._rng)
+        return ancestors, np.full(n, -np.log(n)), self._pred_mean[ancestors], trans_cov[ancestors]
 
     def _associate_scan(self, obs, sensor, prior_weights, report) -> tuple[np.ndarray, np.ndarray]:
         """(landmark rows, observation indices) of the scan's associated observations."""
@@ -342,16 +344,15 @@ class OnlineEMSlam:
 
     def _commit(self, particles, weights, pose_correction, data: FilterStepData) -> None:
         """New anchors for the next transition, moved by the M-step's pose correction."""
-        mean = data.pose_mean
         if pose_correction is not None:
             particles = particles + pose_correction
             particles[:, 2] = wrap_angle(particles[:, 2])
-            mean = partial(weighted_pose_mean, particles, weights)
         self._particles = particles
         self._log_w = np.log(np.maximum(weights, 1e-300))
         self._pred_mean = particles.copy()
         self._pred_cov = np.zeros_like(self._pred_cov)
-        self._motion.reset_track(mean())
+        mean = data.pose_mean() if pose_correction is None else weighted_pose_mean(particles, weights)
+        self._motion.reset_track(mean)
         self._ess = effective_sample_size(weights)
         self._resample_pending = self._ess < self.config.filter.resample_threshold * particles.shape[0]
         self._anchor_time = self._input.last_stamp
@@ -390,9 +391,8 @@ class OnlineEMSlam:
                 np.concatenate([plan.update_rows, new_rows]).astype(int))
 
     def _create_landmarks(self, plan, y: np.ndarray, mean_sensor, drop) -> np.ndarray:
-        """Landmarks for the plan's creations (association.creations) at ``mean_sensor()``, none
-        while relocalising; their rows.  The kept creations are the first entries of
-        ``plan.create_obs`` afterwards."""
+        """Landmarks for the plan's creations (association.creations) at ``mean_sensor()``, none while
+        relocalising; their rows.  The kept creations are the first entries of ``plan.create_obs`` afterwards."""
         if not plan.create_obs.size:
             return np.zeros(0, dtype=int)
         if self._relocalising:

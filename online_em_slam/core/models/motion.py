@@ -264,8 +264,13 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
     yaw_before = np.concatenate([[0.0], np.cumsum(yaw_steps)[:-1]]) if k > 1 else np.zeros(1)
     (dx, dy, _), lever, Q = moves(config, factors, poses[None, :, 2] + yaw_before[:, None])   # (K, N)
     new = poses.copy()
-    new[:, 0] += dx.sum(axis=0)
-    new[:, 1] += dy.sum(axis=0)
+    if k > 1:      # summed as a (K, N, 2) slice of (K, N, 3): numpy's order of summation, so its rounding
+        moves = np.empty((k, n, 3))
+        moves[..., 0], moves[..., 1] = dx, dy
+        new[:, :2] += moves[..., :2].sum(axis=0)
+    else:
+        new[:, 0] += dx[0]
+        new[:, 1] += dy[0]
     new[:, 2] += yaw_steps.sum()
     if k > 1:
         s = np.stack(lever, axis=-1)                                          # (K, N, 2)
