@@ -27,15 +27,14 @@ from .angles import wrap_angle
 from ..config import MOTION_MODELS, MotionConfig
 
 
-def _noise_cov(G, variances: np.ndarray) -> np.ndarray:
+def _noise_cov(G, variances) -> np.ndarray:
     """G diag(variances) G^T (..., 3, 3) from G's entries ``G[a][j]`` (a: x, y, yaw; j: the two
-    controls), each broadcastable to the batch, and ``variances`` (..., 2).
+    controls) and the two controls' ``variances``, each broadcastable to the batch.
 
     Entry by entry over the batch: for hundreds of 3 x 2 matrices far fewer and cheaper
     numpy calls than a batched matmul.
     """
-    v = (variances[..., 0], variances[..., 1])
-    GV = [(row[0] * v[0], row[1] * v[1]) for row in G]
+    GV = [(row[0] * variances[0], row[1] * variances[1]) for row in G]
     entries = {(a, b): GV[a][0] * G[b][0] + GV[a][1] * G[b][1] for a in range(3) for b in range(a, 3)}
     Q = np.empty(np.broadcast_shapes(*(e.shape for e in entries.values())) + (3, 3))
     for (a, b), value in entries.items():
@@ -44,8 +43,9 @@ def _noise_cov(G, variances: np.ndarray) -> np.ndarray:
     return Q
 
 
-def _control_variances(config: MotionConfig, control: np.ndarray, dt: float) -> np.ndarray:
-    """Per-step control variances, scaled as continuous-time white noise.
+def _control_variances(config: MotionConfig, control: np.ndarray, dt: float) -> tuple:
+    """Per-step control variances (speed's, steering's or yaw rate's), scaled as continuous-time
+    white noise.
 
     sigma is specified for ``noise_reference_period`` seconds; per step of dt
     the variance is sigma^2 * ref / dt so that the integrated pose variance
@@ -59,7 +59,7 @@ def _control_variances(config: MotionConfig, control: np.ndarray, dt: float) -> 
         speed = speed + (config.sigma_speed_relative * control[..., 0]) ** 2
     if config.sigma_steering_relative:
         steering = steering + (config.sigma_steering_relative * control[..., 1]) ** 2
-    return np.stack(np.broadcast_arrays(speed * scale, steering * scale), axis=-1)
+    return speed * scale, steering * scale
 
 
 def _heading_noise(config: MotionConfig, dt: float) -> float:
@@ -277,14 +277,21 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
         from_k = np.cumsum(s[::-1], axis=0)[::-1]                             # sum_{j >= k} s_j
         noise, total = _through_lever(Q, from_k - s).sum(axis=0), from_k[0]
     else:      # nothing after the one segment: its noise as it is (+ 0.0: the zero lever's signed zeros)
-        noise, total = Q[0] + 0.0, np.stack([lever[0][0], lever[1][0]], axis=-1)
+        noise, total = Q[0] + 0.0, None
     # A zero P_0 (every flush right after a filter step) gives zero through the lever.
-    cov = _through_lever(covariances, total) + noise if covariances.any() else noise + 0.0
+    if covariances.any():
+        total = np.stack([lever[0][0], lever[1][0]], axis=-1) if total is None else total
+        cov = _through_lever(covariances, total) + noise
+    else:
+        cov = noise + 0.0
     if not with_jacobian:
         return new, cov
     jacobian = np.zeros((n, 3, 3))
     jacobian[:, 0, 0] = jacobian[:, 1, 1] = jacobian[:, 2, 2] = 1.0
-    jacobian[:, :2, 2] = total
+    if total is None:
+        jacobian[:, 0, 2], jacobian[:, 1, 2] = lever[0][0], lever[1][0]
+    else:
+        jacobian[:, :2, 2] = total
     return new, cov, jacobian
 
 
