@@ -131,9 +131,10 @@ def plan_associations(ids: np.ndarray, y: np.ndarray, rows_of_ids, candidates, g
     Shared by online EM and the baselines, so every method sees the same gates.
     """
     known = np.flatnonzero(ids >= 0)
-    first = np.sort(np.unique(ids[known], return_index=True)[1])
-    drop("duplicate_id", known.size - first.size)
-    known = known[first]
+    if len(set(ids[known].tolist())) < known.size:           # a repeated id: its first observation
+        first = np.sort(np.unique(ids[known], return_index=True)[1])
+        drop("duplicate_id", known.size - first.size)
+        known = known[first]
     rows = rows_of_ids(ids[known])
     update_obs, update_rows = [known[rows >= 0]], [rows[rows >= 0]]
     create_obs, create_ids = list(known[rows < 0]), [int(i) for i in ids[known[rows < 0]]]

@@ -282,8 +282,8 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
     if covariances.any():
         total = np.stack([lever[0][0], lever[1][0]], axis=-1) if total is None else total
         cov = _through_lever(covariances, total) + noise
-    else:
-        cov = noise + 0.0
+    else:      # + 0.0: the zero lever's signed zeros (the one segment's noise has them already)
+        cov = noise + 0.0 if k > 1 else noise
     if not with_jacobian:
         return new, cov
     jacobian = np.zeros((n, 3, 3))
