@@ -194,6 +194,12 @@ class FilterConfig:
                                                            "narrowed to relocalisation_tolerance.")
     relocalisation_tolerance: float = param(0.5, 0.0, 1e3, lo_open=True, doc="Position std (m, largest axis) "
                                             "of the particle cloud below which a relocalisation is over.")
+    minimum_travel_distance: float = param(0.0, 0.0, 1e3, doc="An observation update only once the robot has "
+                                           "travelled this far (m) since the last one, or turned "
+                                           "minimum_travel_heading; 0 with minimum_travel_heading 0: every scan. "
+                                           "A robot standing still reads the same errors again.")
+    minimum_travel_heading: float = param(0.0, 0.0, 2.0 * math.pi, doc="... or turned this much (rad) since "
+                                          "the last observation update; see minimum_travel_distance.")
 
     def validate(self, prefix: str = "filter") -> None:
         check_length(f"{prefix}.initial_pose_std", self.initial_pose_std, 3, " (x, y, yaw)")

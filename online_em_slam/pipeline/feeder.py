@@ -4,7 +4,8 @@ Works with every estimator of the package (``add_control``, ``add_odometry``,
 ``add_observations``, ``pose``).  Empty clouds carry no observation and are
 not fed (``empty_cloud``, unless the cloud reader emptied it: its points are
 already counted by reason, ``invalid_id`` and the like); observations before the first motion input have no
-pose to hang on (``no_motion_input``).  The trajectory is the estimator's pose
+pose to hang on (``no_motion_input``); a scan before the robot has travelled
+``filter.minimum_travel_*`` since the last used one is not used (``minimum_travel``, travel.py).  The trajectory is the estimator's pose
 after each observation message, once per estimator stamp: the node publishes it
 as ``~/path`` and the offline runner writes it as trajectory.csv, so the two
 are comparable point for point.
@@ -20,6 +21,7 @@ from dataclasses import dataclass
 
 from .inputs import CONTROL, ODOMETRY, Input
 from .rollback import Rollback
+from .travel import MinimumTravel
 
 
 @dataclass
@@ -45,6 +47,7 @@ class Feeder:
         self.rollback = Rollback(estimator)
         self.motion_seen = False
         self.last_point_stamp: float | None = None
+        self.travel = MinimumTravel.from_config(getattr(estimator, "config", None))
 
     def apply(self, item: Input, use_observations: bool = True) -> Fed:
         """Apply ``item``; ``use_observations`` False sheds an observation update (overload)."""
@@ -74,8 +77,12 @@ class Feeder:
             return fed
         elif not use_observations:
             self.drops["overload"] += 1
+        elif self.travel.enabled and not self.travel.due(self.rollback.call("pose").mean):
+            self.drops["minimum_travel"] += 1
         else:
             fed.report = self.rollback.call("add_observations", item.stamp, item.payload)
+            if self.travel.enabled:
+                self.travel.used(self.rollback.call("pose").mean)
         fed.trajectory_point = self._trajectory_point(item.stamp)
         return fed
 
