@@ -20,71 +20,92 @@ import collections
 import numpy as np
 
 from online_em_slam.core.filter.association import predicted_measurements
+from online_em_slam.core.filter.slam import OnlineEMSlam
 from online_em_slam.core.models.observation import (innovation, mahalanobis_2d, noise_covariance,
                                                     predict_observation)
 from online_em_slam.core.types import Observations
 from online_em_slam.core.weighted import weighted_pose_mean
-from online_em_slam.offline.runner import choose_initial_pose, feed, make_estimator, read_inputs
+from online_em_slam.offline.runner import choose_initial_pose, feed, read_inputs
 from online_em_slam.parameters.yaml_file import config_from_params, load_params
 
 
 class Oracle:
-    """Wraps an OnlineEMSlam: hides the ids, logs (stamp, barcode, landmark id, created)."""
+    """The record of one run: the barcodes of each scan (by stamp) and every decision, as
+    (stamp, barcode, landmark id or -1 dropped, created). Kept outside the estimator, whose
+    state the input pipeline copies for its rollback; cleared when the estimator restarts
+    (the warm-up replay filters the same scans again)."""
 
-    def __init__(self, estimator, inputs, config):
-        self.est, self.inputs, self.config = estimator, inputs, config
-        self.log, self.first_landmark, self.barcodes, self.stamp = [], {}, None, 0.0
-        self.start = None
-        self._add, self._associate = estimator.add_observations, estimator._associate
-        estimator.add_observations, estimator._associate = self.add_observations, self.associate
+    def __init__(self, inputs, config):
+        self.inputs, self.config = inputs, config
+        self.barcodes, self.log, self.first_landmark, self.start = {}, [], {}, None
 
-    def add_observations(self, stamp, obs):
-        self.barcodes, self.stamp = obs.ids.copy(), stamp
-        self.start = stamp if self.start is None else self.start
-        return self._add(stamp, Observations(obs.ranges, obs.bearings, None, obs.range_std, obs.bearing_std))
+    def restart(self):
+        self.log, self.first_landmark = [], {}
 
-    def associate(self, obs, sensor, prior_weights, report):
-        n_before = len(self.est._map.ids)
-        obs_idx, rows = self._associate(obs, sensor, prior_weights, report)
+    def decided(self, est, stamp, obs, sensor, prior_weights, obs_idx, rows, n_before):
+        codes = self.barcodes[stamp]
         for o, row in zip(obs_idx, rows):
-            code, landmark, created = int(self.barcodes[o]), int(self.est._map.ids[row]), bool(row >= n_before)
-            self.log.append((self.stamp, code, landmark, created))
+            code, landmark, created = int(codes[o]), int(est._map.ids[row]), bool(row >= n_before)
+            self.log.append((stamp, code, landmark, created))
             if created and code in self.first_landmark:
-                self.explain(obs, o, sensor, prior_weights, code)
+                self.explain(est, stamp, obs, o, sensor, prior_weights, code)
             elif created:
                 self.first_landmark[code] = landmark
-        for o in sorted(set(range(len(self.barcodes))) - set(obs_idx.tolist())):
-            self.log.append((self.stamp, int(self.barcodes[o]), -1, False))
-        return obs_idx, rows
+        for o in sorted(set(range(len(codes))) - set(obs_idx.tolist())):
+            self.log.append((stamp, int(codes[o]), -1, False))
 
-    def explain(self, obs, o, sensor, prior_weights, code):
+    def explain(self, est, stamp, obs, o, sensor, prior_weights, code):
         """Why the first landmark of this barcode was not taken."""
-        rows = np.flatnonzero(self.est._map.ids == self.first_landmark[code])
+        rows = np.flatnonzero(est._map.ids == self.first_landmark[code])
         if not rows.size:                    # pruned meanwhile
             return
         w = prior_weights / prior_weights.sum()
-        noise = self.est._noise.noise_config()
-        R = noise_covariance(noise, obs.ranges[[o]])
-        theta = self.est._map.theta[rows[:1]]
-        mean, S = predicted_measurements(theta, sensor, w, self.est._m_step.covariances(rows[:1]),
+        R = noise_covariance(est._noise.noise_config(), obs.ranges[[o]])
+        theta = est._map.theta[rows[:1]]
+        mean, S = predicted_measurements(theta, sensor, w, est._m_step.covariances(rows[:1]),
                                          self.config.association, R)
         y = np.array([[obs.ranges[o], obs.bearings[o]]])
         d2, _ = mahalanobis_2d(innovation(y, mean)[:, None, :], S)
-        truth = self.truth_pose()
+        truth = self.truth_pose(stamp)
         surveyed = self.inputs.landmarks[list(self.inputs.landmark_ids).index(code)]
         h_true = predict_observation(truth[None], surveyed[None])[0]
         pose = weighted_pose_mean(sensor, w)
         spread = np.sqrt(np.diag(np.cov(sensor.T, aweights=w)))
-        print(f"duplicate t={self.stamp - self.start:6.1f} s barcode {code}: d2 {float(d2.ravel()[0]):6.1f}  "
+        print(f"duplicate t={stamp - self.start:6.1f} s barcode {code}: d2 {float(d2.ravel()[0]):6.1f}  "
               f"y ({y[0, 0]:.2f}, {y[0, 1]:+.3f})  predicted ({mean[0, 0]:.2f}, {mean[0, 1]:+.3f})  "
               f"true ({h_true[0]:.2f}, {h_true[1]:+.3f})  gate std ({np.sqrt(S[0, 0, 0, 0]):.3f}, "
               f"{np.sqrt(S[0, 0, 1, 1]):.3f})  pose error ({pose[0] - truth[0]:+.2f}, {pose[1] - truth[1]:+.2f}, "
               f"{np.angle(np.exp(1j * (pose[2] - truth[2]))):+.3f})  spread ({spread[0]:.3f}, {spread[1]:.3f}, "
               f"{spread[2]:.3f})  landmark error {np.hypot(*(theta[0] - surveyed)):.2f} m")
 
-    def truth_pose(self):
-        k = min(np.searchsorted(self.inputs.gt_pose_times, self.stamp), len(self.inputs.gt_poses) - 1)
+    def truth_pose(self, stamp):
+        k = min(np.searchsorted(self.inputs.gt_pose_times, stamp), len(self.inputs.gt_poses) - 1)
         return self.inputs.gt_poses[k]
+
+
+def oracle_estimator(config, pose, oracle: Oracle) -> OnlineEMSlam:
+    """OnlineEMSlam that sees no ids and reports its associations to ``oracle``."""
+
+    class HiddenIds(OnlineEMSlam):
+        def reset(self, *args, **kwargs):
+            oracle.restart()
+            return super().reset(*args, **kwargs)
+
+        def add_observations(self, stamp, obs):
+            if np.any(obs.ids >= 0):                     # from the bag, not the warm-up replay
+                oracle.barcodes[stamp] = obs.ids.copy()
+                oracle.start = stamp if oracle.start is None else oracle.start
+            self._oracle_stamp = stamp
+            return super().add_observations(stamp, Observations(obs.ranges, obs.bearings, None, obs.range_std,
+                                                                obs.bearing_std))
+
+        def _associate(self, obs, sensor, prior_weights, report):
+            n_before = len(self._map.ids)
+            obs_idx, rows = super()._associate(obs, sensor, prior_weights, report)
+            oracle.decided(self, self._oracle_stamp, obs, sensor, prior_weights, obs_idx, rows, n_before)
+            return obs_idx, rows
+
+    return HiddenIds(config, initial_pose=pose)
 
 
 def summary(log):
@@ -117,10 +138,11 @@ def main():
     config, settings = config_from_params(values, {"filter.seed": args.seed})
     inputs = read_inputs(args.bag, settings)
     initial = choose_initial_pose("auto", inputs, config, settings, values)
-    oracle = Oracle(make_estimator("online_em", config, initial.pose), inputs, config)
-    feed(oracle.est, inputs)
+    oracle = Oracle(inputs, config)
+    estimator = oracle_estimator(config, initial.pose, oracle)
+    feed(estimator, inputs)
     summary(oracle.log)
-    print("drops", dict(oracle.est.drops))
+    print("drops", dict(estimator.drops))
 
 
 if __name__ == "__main__":
