@@ -27,7 +27,7 @@ from scipy.special import digamma
 
 from ...config import ObservationNoiseConfig, SensorConfig
 from ...noise_learning_config import NoiseLearningConfig
-from ...models.observation import (component_precision_weight, inv_det_2x2, mahalanobis_2d, noise_loglik,
+from ...models.observation import (component_precision_weight, inv_det_2x2, mahalanobis_d2, noise_loglik,
                                    student_t_weight)
 from ..step import FilterStepData
 
@@ -94,8 +94,10 @@ def latent_variables(noise: ObservationNoiseConfig, nu: np.ndarray, S: np.ndarra
     models get S at nu's shape, as noise_loglik always had it.
     """
     if noise.model == "student_t":
-        d2, _ = mahalanobis_2d(nu, S)
+        d2 = mahalanobis_d2(nu, S)
         return student_t_weight(d2, noise.dof)[..., None], d2
+    if noise.model == "gaussian":
+        return np.ones(nu.shape[:-1] + (1,)), None           # noise_loglik's latent, without its likelihood
     return noise_loglik(noise, nu, np.broadcast_to(S, nu.shape + (2,)))[1], None
 
 
