@@ -85,7 +85,7 @@ def range_noise_fit(counts: np.ndarray, means: np.ndarray, a: float, b: float, f
         weights = counts / np.maximum(variance, 1e-300) ** 2
         rho = variance - e2
         cost = float(weights @ rho ** 2)
-        step = _gauss_newton_step(r, r2, rho, weights, params, free).tolist()
+        step = _gauss_newton_step(r, r2, rho, weights, params, free)
         if all(abs(d) <= 1e-9 * abs(p) + 1e-15 for d, p in zip(step, params)):
             break                                         # converged (the averages move slowly)
         for _ in range(10):                               # backtrack: keep the cost decreasing
@@ -108,22 +108,30 @@ def _range_variance(r: np.ndarray, r2: np.ndarray, params: tuple[float, float]) 
 
 
 def _gauss_newton_step(r: np.ndarray, r2: np.ndarray, rho: np.ndarray, weights: np.ndarray,
-                       params: tuple[float, float], free: np.ndarray) -> np.ndarray:
+                       params: tuple[float, float], free: np.ndarray) -> list[float]:
     """-(J^T W J)^-1 J^T W rho on the free parameters (2,), rho the residuals (K,);
-    J_j = 2 (a + b E[r], a E[r] + b E[r^2]) (K, 2)."""
+    J_j = 2 (a + b E[r], a E[r] + b E[r^2]) (K, 2), only its free columns made.
+
+    One free parameter: LAPACK's solve of one equation is the division, done in floats.
+    """
     a, b = params
-    JT = np.empty((2, r.size))                     # J^T's rows contiguous: the layout BLAS gets
-    np.multiply(b, r, out=JT[0])
-    JT[0] += a
-    np.multiply(a, r, out=JT[1])
-    JT[1] += b * r2
-    JT *= 2.0
-    J = JT.T if free.all() else JT[free].T
+    halves = []                                    # J's free columns / 2
+    if free[0]:
+        halves.append(a + b * r)
+    if free[1]:
+        halves.append(a * r + b * r2)
+    J = (2.0 * np.array(halves)).T                 # (K, m): J^T's rows contiguous, as BLAS had them
     G = J.T @ (weights[:, None] * J)
-    step = np.zeros(2)
     ridge = 1e-12 * max(G.trace(), 1e-300)       # all observations in one bin: b is not identified
+    gradient = J.T @ (weights * rho)
+    step = [0.0, 0.0]
     try:
-        step[free] = -np.linalg.solve(G + ridge * np.eye(G.shape[0]), J.T @ (weights * rho))
-    except np.linalg.LinAlgError:
-        pass
+        if J.shape[1] == 1:
+            solution = [float(gradient[0]) / (float(G[0, 0]) + ridge)]
+        else:
+            solution = np.linalg.solve(G + ridge * np.eye(2), gradient).tolist()
+    except (np.linalg.LinAlgError, ZeroDivisionError):
+        return step
+    for index, value in zip(np.flatnonzero(free).tolist(), solution):
+        step[index] = -value
     return step
