@@ -141,14 +141,14 @@ def prediction_statistic(steps: MotionSteps, pose_jacobian: np.ndarray, innovati
     G = Hx @ Q @ Hx.T
     K = Hx @ (Phi @ steps.P[0] @ Phi.T + J) @ Hx.T + block_diagonal(noise_cov)
     try:
-        if np.trace(np.linalg.solve(Q + J, Q)) < MIN_MOTION_DIMENSIONS:
+        if np.linalg.solve(Q + J, Q).trace() < MIN_MOTION_DIMENSIONS:
             return None                   # standing still: the jitter is all the window moved
         S_inv = np.linalg.inv(K + weight_scale * G)
     except np.linalg.LinAlgError:
         return None
     W = S_inv @ G @ S_inv
-    sample = np.array([np.trace(W @ G), nu @ W @ nu - np.trace(W @ K)])
-    return sample if np.all(np.isfinite(sample)) and sample[0] > 0 else None
+    sample = np.array([(W @ G).trace(), nu @ W @ nu - (W @ K).trace()])
+    return sample if np.isfinite(sample).all() and sample[0] > 0 else None
 
 
 def shape_statistic(steps: MotionSteps, parts: np.ndarray, pose_jacobian: np.ndarray, innovation: np.ndarray,
@@ -173,7 +173,7 @@ def shape_statistic(steps: MotionSteps, parts: np.ndarray, pose_jacobian: np.nda
     A = np.array([[np.trace(W[j] @ G[k]) for k in range(m)] for j in range(m)])
     b = np.array([nu @ W[j] @ nu - np.trace(W[j] @ K) for j in range(m)])
     z = np.concatenate([A.ravel(), b])
-    return z if np.all(np.isfinite(z)) and np.trace(A) > 0 else None
+    return z if np.isfinite(z).all() and A.trace() > 0 else None
 
 
 def group_scales(A: np.ndarray, b: np.ndarray, low: float, high: float, current: np.ndarray) -> np.ndarray:

@@ -132,6 +132,6 @@ def _gauss_newton_step(r: np.ndarray, r2: np.ndarray, rho: np.ndarray, weights: 
             solution = np.linalg.solve(G + ridge * np.eye(2), gradient).tolist()
     except (np.linalg.LinAlgError, ZeroDivisionError):
         return step
-    for index, value in zip(np.flatnonzero(free).tolist(), solution):
+    for index, value in zip([i for i in (0, 1) if free[i]], solution):
         step[index] = -value
     return step
