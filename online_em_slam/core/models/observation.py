@@ -156,9 +156,18 @@ def inv_det_2x2(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def mahalanobis_2d(nu: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """nu^T S^-1 nu and log det S for 2-vectors."""
     inv, det = inv_det_2x2(S)
-    d2 = (nu[..., 0] * (inv[..., 0, 0] * nu[..., 0] + inv[..., 0, 1] * nu[..., 1])
-          + nu[..., 1] * (inv[..., 1, 0] * nu[..., 0] + inv[..., 1, 1] * nu[..., 1]))
-    return d2, np.log(np.maximum(det, 1e-300))
+    return _quadratic_form(nu, inv), np.log(np.maximum(det, 1e-300))
+
+
+def mahalanobis_d2(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """nu^T S^-1 nu (...) for 2-vectors nu (..., 2), S (..., 2, 2): mahalanobis_2d without log det S."""
+    return _quadratic_form(nu, inv_det_2x2(S)[0])
+
+
+def _quadratic_form(nu: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """nu^T inv nu (...) for 2-vectors nu (..., 2) and 2x2 matrices inv (..., 2, 2)."""
+    return (nu[..., 0] * (inv[..., 0, 0] * nu[..., 0] + inv[..., 0, 1] * nu[..., 1])
+            + nu[..., 1] * (inv[..., 1, 0] * nu[..., 0] + inv[..., 1, 1] * nu[..., 1]))
 
 
 def gaussian_loglik(nu: np.ndarray, S: np.ndarray) -> np.ndarray:

@@ -11,11 +11,16 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def mean(x: np.ndarray, axis: int | None = None):
+    """``x.mean(axis)`` bit for bit without its Python wrapper: the same sum (np.add.reduce) over the count."""
+    return np.add.reduce(x, axis=axis) / (x.size if axis is None else x.shape[axis])
+
+
 def batch_step_size(count: float, batch: int, alpha: float) -> float:
     """gamma of ``batch`` consecutive updates n = count+1 .. count+batch with one mean:
     1 - prod_j (1 - n_j^-alpha), so a scan of P observations weighs as P single updates."""
     n = count + np.arange(1, batch + 1, dtype=float)
-    return float(1.0 - np.prod(1.0 - n ** -alpha))
+    return float(1.0 - np.multiply.reduce(1.0 - n ** -alpha))                      # np.prod's reduction
 
 
 def batch_step_sizes(counts: np.ndarray, batches: np.ndarray, alpha: float) -> np.ndarray:

@@ -284,10 +284,10 @@ class NoiseLearner:
         if ids.size < 2:
             return
         nu, H_x, scale = used.scan
-        residual, cov, shared = pose_free(nu, used.R + used.map_term, H_x, used.map_term)
+        residual, cov, shared = pose_free(nu, used.S, H_x, used.map_term)
         z = whitened(residual, cov, scale)
         previous, paired = self._previous.pair(step, ids, z)
-        if previous.shape[0] and np.all(np.isfinite(previous)) and np.all(np.isfinite(z[paired])):
+        if previous.shape[0] and np.isfinite(previous).all() and np.isfinite(z[paired]).all():
             share = shared[paired] / np.diagonal(cov[paired], axis1=-2, axis2=-1) * scale[paired, None]
             self.serial.blend(pair_sample(previous, z[paired], share), previous.shape[0])
 
@@ -322,7 +322,7 @@ class NoiseLearner:
             return
         if "motion_scale" not in self.learn or not self._observation_noise_settled:
             return
-        sample = prediction_statistic(self.window.steps, *self._scan_terms(used), weight_scale=self.scale_in_use)
+        sample = prediction_statistic(self.window.steps, *used.scan_terms, weight_scale=self.scale_in_use)
         if sample is None:
             return
         a, b = sample
@@ -343,7 +343,7 @@ class NoiseLearner:
         scales in use towards the estimate once warm."""
         if not self._observation_noise_settled:
             return
-        z = shape_statistic(self.window.steps, self.parts, *self._scan_terms(used), self.scales_in_use)
+        z = shape_statistic(self.window.steps, self.parts, *used.scan_terms, self.scales_in_use)
         if z is None:
             return
         self.shape_average.blend(z)
@@ -369,7 +369,7 @@ class NoiseLearner:
 
     def _update_gains(self, used: UsedObservations) -> None:
         """Blend (G) of the window (motion_gains.py); move the gains in use once they are known."""
-        z = gain_statistic(self.window.steps, self.sensitivities, *self._scan_terms(used), self.scale_in_use,
+        z = gain_statistic(self.window.steps, self.sensitivities, *used.scan_terms, self.scale_in_use,
                            self.gains_in_use)
         if z is None:
             return
@@ -384,16 +384,6 @@ class NoiseLearner:
                                      self.settings.motion_gain_tolerance)
         target = np.where(self._gain_warm, self.gains_estimate, self.gains_in_use)
         self.gains_in_use = move_towards(self.gains_in_use, target, _SCALE_RATIO)
-
-    @staticmethod
-    def _scan_terms(used: UsedObservations):
-        """(H_x (P, 2, 3), posterior mean innovation (P, 2), noise covariance (P, 2, 2)) of the scan.
-
-        The noise is the learned R times each observation's variance factor (an outlier's
-        wider) plus the map term H Sigma H^T.
-        """
-        nu, H_x, _ = used.scan
-        return H_x, nu, used.R * used.variance_factor[:, None, None] + used.map_term
 
     # ------------------------------------------------------------ M-step
     def _observation_m_step(self, stats: np.ndarray) -> ObservationNoiseConfig:

@@ -62,7 +62,7 @@ def gain_statistic(steps: MotionSteps, D: np.ndarray, pose_jacobian: np.ndarray,
     N = B.T @ S_inv_B
     h = S_inv_B.T @ (nu + B @ gains)
     z = np.concatenate([N.ravel(), h])
-    return z if np.all(np.isfinite(z)) and np.trace(N) > 0 else None
+    return z if np.isfinite(z).all() and N.trace() > 0 else None
 
 
 class MotionGains:

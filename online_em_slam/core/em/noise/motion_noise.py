@@ -81,27 +81,43 @@ class MotionWindow:
         self.count += 1
 
 
-def compound(steps: MotionSteps) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def compound(steps: MotionSteps, Phi: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """C = sum_k Phi(t, k) c_k, Q_L = sum_k Phi Q_k Phi^T, J_L (the jitter's), Phi(t, start) over ``steps``.
 
     C is what the window's motion residuals add up to at its end: the open-loop
     prediction of the pose at t from the posterior at the window's start, minus
-    the posterior mean at t; Q_L is its motion covariance at scale 1.
+    the posterior mean at t; Q_L is its motion covariance at scale 1.  ``Phi``:
+    :func:`transitions` of the steps' Jacobians, when already made.
 
-    Phi(t, k) is built from the end backwards, one 3x3 product per step (the same
-    products in the same order as one step at a time); the terms are then one stacked
-    matmul each (per matrix the same BLAS call) and summed newest first from zero.
+    The terms are one stacked matmul each (per matrix the same BLAS call) and summed
+    newest first from zero.
     """
     L = steps.c.shape[0]
-    Phi = np.empty((L + 1, 3, 3))                 # Phi[k + 1] = Phi(t, k) of step k; Phi[0] the whole window's
-    Phi[L] = np.eye(3)
-    for k in range(L - 1, -1, -1):
-        np.matmul(Phi[k + 1], steps.F[k], out=Phi[k])
+    Phi = transitions(steps.F) if Phi is None else Phi
     Phis, PhisT = Phi[1:], Phi[1:].transpose(0, 2, 1)
     terms = np.concatenate([(Phis @ steps.c[..., None]).reshape(L, 3), (Phis @ steps.Q @ PhisT).reshape(L, 9),
                             (Phis @ steps.J @ PhisT).reshape(L, 9)], axis=1)
     total = _running_total(terms[::-1])
     return total[:3], total[3:12].reshape(3, 3), total[12:].reshape(3, 3), Phi[0]
+
+
+def transitions(F: np.ndarray) -> np.ndarray:
+    """Phi (L + 1, 3, 3) of Jacobians F (L, 3, 3): Phi[k + 1] = Phi(t, k) = F_{L-1} ... F_{k+1} of
+    step k, Phi[0] the whole window's; built from the end backwards, one 3x3 product per step
+    (the same products in the same order as one step at a time)."""
+    L = F.shape[0]
+    Phi = np.empty((L + 1, 3, 3))
+    Phi[L] = np.eye(3)
+    for k in range(L - 1, -1, -1):
+        np.matmul(Phi[k + 1], F[k], out=Phi[k])
+    return Phi
+
+
+def compounded_noise(Phi: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """sum_k Phi(t, k) Q_k Phi(t, k)^T (3, 3) of :func:`transitions` Phi (L + 1, 3, 3) and
+    covariances Q (L, 3, 3): :func:`compound`'s Q_L (each entry's running total on its own)."""
+    Phis = Phi[1:]
+    return _running_total((Phis @ Q @ Phis.transpose(0, 2, 1)).reshape(-1, 9)[::-1]).reshape(3, 3)
 
 
 def _running_total(terms: np.ndarray) -> np.ndarray:
@@ -141,14 +157,14 @@ def prediction_statistic(steps: MotionSteps, pose_jacobian: np.ndarray, innovati
     G = Hx @ Q @ Hx.T
     K = Hx @ (Phi @ steps.P[0] @ Phi.T + J) @ Hx.T + block_diagonal(noise_cov)
     try:
-        if np.trace(np.linalg.solve(Q + J, Q)) < MIN_MOTION_DIMENSIONS:
+        if np.linalg.solve(Q + J, Q).trace() < MIN_MOTION_DIMENSIONS:
             return None                   # standing still: the jitter is all the window moved
         S_inv = np.linalg.inv(K + weight_scale * G)
     except np.linalg.LinAlgError:
         return None
     W = S_inv @ G @ S_inv
-    sample = np.array([np.trace(W @ G), nu @ W @ nu - np.trace(W @ K)])
-    return sample if np.all(np.isfinite(sample)) and sample[0] > 0 else None
+    sample = np.array([(W @ G).trace(), nu @ W @ nu - (W @ K).trace()])
+    return sample if np.isfinite(sample).all() and sample[0] > 0 else None
 
 
 def shape_statistic(steps: MotionSteps, parts: np.ndarray, pose_jacobian: np.ndarray, innovation: np.ndarray,
@@ -159,11 +175,11 @@ def shape_statistic(steps: MotionSteps, parts: np.ndarray, pose_jacobian: np.nda
     the ``scales`` in use (the score's weights), K as in :func:`prediction_statistic`.  A group
     the window did not excite (a robot that did not turn) has a zero row and column."""
     m = parts.shape[1]
-    C, _, J, Phi = compound(steps[1:])
+    transition = transitions(steps.F[1:])
+    C, _, J, Phi = compound(steps[1:], transition)
     Hx = pose_jacobian.reshape(-1, 3)
     nu = innovation.reshape(-1) - Hx @ C
-    G = [Hx @ compound(MotionSteps(steps.c[1:], steps.F[1:], parts[1:, k], steps.J[1:], steps.P[1:]))[1] @ Hx.T
-         for k in range(m)]
+    G = [Hx @ compounded_noise(transition, parts[1:, k]) @ Hx.T for k in range(m)]
     K = Hx @ (Phi @ steps.P[0] @ Phi.T + J) @ Hx.T + block_diagonal(noise_cov)
     try:
         S_inv = np.linalg.inv(K + sum(scale * g for scale, g in zip(scales, G)))
@@ -173,7 +189,7 @@ def shape_statistic(steps: MotionSteps, parts: np.ndarray, pose_jacobian: np.nda
     A = np.array([[np.trace(W[j] @ G[k]) for k in range(m)] for j in range(m)])
     b = np.array([nu @ W[j] @ nu - np.trace(W[j] @ K) for j in range(m)])
     z = np.concatenate([A.ravel(), b])
-    return z if np.all(np.isfinite(z)) and np.trace(A) > 0 else None
+    return z if np.isfinite(z).all() and A.trace() > 0 else None
 
 
 def group_scales(A: np.ndarray, b: np.ndarray, low: float, high: float, current: np.ndarray) -> np.ndarray:

@@ -27,9 +27,10 @@ from scipy.special import digamma
 
 from ...config import ObservationNoiseConfig, SensorConfig
 from ...noise_learning_config import NoiseLearningConfig
-from ...models.observation import (component_precision_weight, inv_det_2x2, mahalanobis_2d, noise_loglik,
+from ...models.observation import (component_precision_weight, inv_det_2x2, mahalanobis_d2, noise_loglik,
                                    student_t_weight)
 from ..step import FilterStepData
+from .averages import mean
 
 def student_t_dof(statistic: float, low: float, high: float) -> float:
     """The dof maximising the expected complete-data log-likelihood of the Gamma(dof/2, dof/2)
@@ -94,8 +95,10 @@ def latent_variables(noise: ObservationNoiseConfig, nu: np.ndarray, S: np.ndarra
     models get S at nu's shape, as noise_loglik always had it.
     """
     if noise.model == "student_t":
-        d2, _ = mahalanobis_2d(nu, S)
+        d2 = mahalanobis_d2(nu, S)
         return student_t_weight(d2, noise.dof)[..., None], d2
+    if noise.model == "gaussian":
+        return np.ones(nu.shape[:-1] + (1,)), None           # noise_loglik's latent, without its likelihood
     return noise_loglik(noise, nu, np.broadcast_to(S, nu.shape + (2,)))[1], None
 
 
@@ -115,6 +118,19 @@ class UsedObservations:
         self._mean_of = (data.weights, pose, sensor, noise)
 
     @cached_property
+    def S(self) -> np.ndarray:
+        """R + R / (n_k - 1) (P, 2, 2): the innovations' covariance, made once for the statistics."""
+        return self.R + self.map_term
+
+    @cached_property
+    def scan_terms(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(H_x (P, 2, 3), posterior mean innovation (P, 2), noise covariance (P, 2, 2)) of the scan for
+        the window's statistics, made once: the learned R times each observation's variance factor
+        (an outlier's wider) plus the map term H Sigma H^T."""
+        nu, H_x, _ = self.scan
+        return H_x, nu, self.R * self.variance_factor[:, None, None] + self.map_term
+
+    @cached_property
     def scan(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(posterior-mean innovations nubar (P, 2), pose Jacobians H_x (P, 2, 3) at the mean pose,
         the noise model's precision factors at nubar (P,)): shared by the motion and serial statistics."""
@@ -128,7 +144,7 @@ class UsedObservations:
         """(posterior-mean innovations nubar (P, 2), the noise model's latent variables at them (P, C))."""
         w, _, _, noise = self._mean_of
         nu = np.einsum("n,npi->pi", w, self.nu)
-        return nu, latent_variables(noise, nu, self.R + self.map_term)[0]
+        return nu, latent_variables(noise, nu, self.S)[0]
 
     @cached_property
     def variance_factor(self) -> np.ndarray:
@@ -151,15 +167,15 @@ def observation_statistics(noise: ObservationNoiseConfig, weights: np.ndarray, u
     variables under ``noise`` (None when nothing is used or a statistic is not finite)."""
     if used is None:
         return None
-    ranges, nu, R, map_term, w = used.ranges, used.nu, used.R, used.map_term, weights
-    latent, d2 = latent_variables(noise, nu, R + map_term)                       # (N, P, C)
+    ranges, nu, R, w = used.ranges, used.nu, used.R, weights
+    latent, d2 = latent_variables(noise, nu, used.S)                             # (N, P, C)
     outer = nu[..., :, None] * nu[..., None, :] * map_share(used.n_obs)[:, None, None]
     E = np.einsum("n,np,npij->pij", w, component_precision_weight(noise, latent), outer)  # (E), (P, 2, 2)
     a, b = noise.sigma_range, noise.range_growth
     sample = np.concatenate([
-        [E[:, 1, 1].mean(), (a * E[:, 0, 1] / (a + b * ranges)).mean()],     # rho scales with sigma_r(r)
+        [mean(E[:, 1, 1]), mean(a * E[:, 0, 1] / (a + b * ranges))],     # rho scales with sigma_r(r)
         tail_statistics(noise, w, latent, outer, R, d2)])
-    if not (np.all(np.isfinite(sample)) and np.all(np.isfinite(E[:, 0, 0]))):
+    if not (np.isfinite(sample).all() and np.isfinite(E[:, 0, 0]).all()):
         return None
     return sample, ranges, E[:, 0, 0]
 
@@ -175,11 +191,11 @@ def tail_statistics(noise: ObservationNoiseConfig, w: np.ndarray, latent: np.nda
     """
     if noise.model == "student_t":
         log_tau = digamma(0.5 * noise.dof + 1.0) - np.log(0.5 * (noise.dof + d2))
-        return np.array([np.einsum("n,np->p", w, log_tau - latent[..., 0]).mean()])
+        return np.array([mean(np.einsum("n,np->p", w, log_tau - latent[..., 0]))])
     R_inv, _ = inv_det_2x2(R)
     q = 0.5 * np.einsum("pij,npji->np", R_inv, outer)                             # tr(R^-1 outer) / 2
-    return np.concatenate([np.einsum("n,npc->pc", w, latent).mean(axis=0),
-                           np.einsum("n,npc,np->pc", w, latent, q).mean(axis=0)])
+    return np.concatenate([mean(np.einsum("n,npc->pc", w, latent), axis=0),
+                           mean(np.einsum("n,npc,np->pc", w, latent, q), axis=0)])
 
 
 def mixture_m_step(stats: np.ndarray, scales_now: tuple, settings: NoiseLearningConfig) -> dict:

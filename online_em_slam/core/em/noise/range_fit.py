@@ -72,49 +72,66 @@ def range_noise_fit(counts: np.ndarray, means: np.ndarray, a: float, b: float, f
     Residuals rho_j = a^2 + 2ab E_j[r] + b^2 E_j[r^2] - E_j[e^2], weights
     n_j^alpha / v_j^2 (a squared Gaussian residual has variance 2 v^2), damped
     Gauss-Newton with the weights renewed at every iteration (iteratively
-    reweighted: its fixed point is the maximum-likelihood one).
+    reweighted: its fixed point is the maximum-likelihood one).  Each iteration
+    evaluates v_j once: the accepted trial's is the next iteration's.
     """
     free = np.array(free, dtype=bool)
-    params = np.array([a, b], dtype=float)
     if counts.size == 0 or not free.any():
         return a, b
+    r, r2, e2 = means[:, 0], means[:, 1], means[:, 2]
+    params = (float(a), float(b))                         # Python floats: the same IEEE arithmetic, no arrays
+    variance = _range_variance(r, r2, params)
     for _ in range(iterations):
-        weights = counts / np.maximum(_range_variance(means, params), 1e-300) ** 2
-        cost = _range_cost(means, weights, params)
-        step = _gauss_newton_step(means, weights, params, free)
-        if np.all(np.abs(step) <= 1e-9 * np.abs(params) + 1e-15):
+        weights = counts / np.maximum(variance, 1e-300) ** 2
+        rho = variance - e2
+        cost = float(weights @ rho ** 2)
+        step = _gauss_newton_step(r, r2, rho, weights, params, free)
+        if all(abs(d) <= 1e-9 * abs(p) + 1e-15 for d, p in zip(step, params)):
             break                                         # converged (the averages move slowly)
         for _ in range(10):                               # backtrack: keep the cost decreasing
-            trial = params + step
-            if trial[0] > 0 and trial[1] >= 0 and _range_cost(means, weights, trial) <= cost * (1 + 1e-12):
-                break
-            step = 0.5 * step
+            trial = (params[0] + step[0], params[1] + step[1])
+            if trial[0] > 0 and trial[1] >= 0:
+                variance = _range_variance(r, r2, trial)
+                if float(weights @ (variance - e2) ** 2) <= cost * (1 + 1e-12):
+                    break
+            step = [0.5 * d for d in step]
         else:
             break
         params = trial
-    return float(params[0]), float(params[1])
+    return params
 
 
-def _range_variance(means: np.ndarray, params: np.ndarray) -> np.ndarray:
-    """E_j[(a + b r)^2] per bin."""
+def _range_variance(r: np.ndarray, r2: np.ndarray, params: tuple[float, float]) -> np.ndarray:
+    """E_j[(a + b r)^2] = a^2 + 2ab E_j[r] + b^2 E_j[r^2] per bin (K,), from E_j[r], E_j[r^2] (K,)."""
     a, b = params
-    return a * a + 2.0 * a * b * means[:, 0] + b * b * means[:, 1]
+    return a * a + 2.0 * a * b * r + b * b * r2
 
 
-def _range_cost(means: np.ndarray, weights: np.ndarray, params: np.ndarray) -> float:
-    return float(weights @ (_range_variance(means, params) - means[:, 2]) ** 2)
+def _gauss_newton_step(r: np.ndarray, r2: np.ndarray, rho: np.ndarray, weights: np.ndarray,
+                       params: tuple[float, float], free: np.ndarray) -> list[float]:
+    """-(J^T W J)^-1 J^T W rho on the free parameters (2,), rho the residuals (K,);
+    J_j = 2 (a + b E[r], a E[r] + b E[r^2]) (K, 2), only its free columns made.
 
-
-def _gauss_newton_step(means: np.ndarray, weights: np.ndarray, params: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """-(J^T W J)^-1 J^T W rho on the free parameters; J_j = 2 (a + b E[r], a E[r] + b E[r^2])."""
+    One free parameter: LAPACK's solve of one equation is the division, done in floats.
+    """
     a, b = params
-    J = 2.0 * np.stack([a + b * means[:, 0], a * means[:, 0] + b * means[:, 1]], axis=1)[:, free]
-    rho = _range_variance(means, params) - means[:, 2]
+    halves = []                                    # J's free columns / 2
+    if free[0]:
+        halves.append(a + b * r)
+    if free[1]:
+        halves.append(a * r + b * r2)
+    J = (2.0 * np.array(halves)).T                 # (K, m): J^T's rows contiguous, as BLAS had them
     G = J.T @ (weights[:, None] * J)
-    step = np.zeros(2)
-    ridge = 1e-12 * max(np.trace(G), 1e-300)       # all observations in one bin: b is not identified
+    ridge = 1e-12 * max(G.trace(), 1e-300)       # all observations in one bin: b is not identified
+    gradient = J.T @ (weights * rho)
+    step = [0.0, 0.0]
     try:
-        step[free] = -np.linalg.solve(G + ridge * np.eye(G.shape[0]), J.T @ (weights * rho))
-    except np.linalg.LinAlgError:
-        pass
+        if J.shape[1] == 1:
+            solution = [float(gradient[0]) / (float(G[0, 0]) + ridge)]
+        else:
+            solution = np.linalg.solve(G + ridge * np.eye(2), gradient).tolist()
+    except (np.linalg.LinAlgError, ZeroDivisionError):
+        return step
+    for index, value in zip([i for i in (0, 1) if free[i]], solution):
+        step[index] = -value
     return step

@@ -25,6 +25,8 @@ import math
 
 import numpy as np
 
+from .averages import mean
+
 
 class PreviousInnovations:
     """Each landmark's last whitened innovation and the filter step it came from, by landmark id
@@ -101,9 +103,9 @@ def pair_sample(previous: np.ndarray, current: np.ndarray, shared: np.ndarray) -
     ``shared`` m (Q, 2): the part of z's variance that is the landmark estimate's error, which
     both innovations of a pair carry even when the observation errors are independent.
     """
-    m = shared.mean(axis=0)
-    return np.concatenate([(previous * current).mean(axis=0) - m, (previous ** 2).mean(axis=0) - m,
-                           (current ** 2).mean(axis=0) - m])
+    m = mean(shared, axis=0)
+    return np.concatenate([mean(previous * current, axis=0) - m, mean(previous ** 2, axis=0) - m,
+                           mean(current ** 2, axis=0) - m])
 
 
 def serial_correlation(moments: np.ndarray, limit: float) -> tuple[float, float]:
