@@ -114,18 +114,11 @@ def run_corridor(steps, cfg, particles: int, cap_s: float | None = None, stop_at
     return np.array(times), np.array(sizes), np.array(seen), time.perf_counter() - began
 
 
-def vm_rss_mb() -> float:
+def proc_status_mb(key: str) -> float:
+    """A memory line of /proc/self/status in MB (VmRSS: resident now, VmHWM: its peak)."""
     with open("/proc/self/status") as handle:
         for line in handle:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
-
-
-def vm_hwm_mb() -> float:
-    with open("/proc/self/status") as handle:
-        for line in handle:
-            if line.startswith("VmHWM:"):
+            if line.startswith(key + ":"):
                 return int(line.split()[1]) / 1024.0
     return float("nan")
 
@@ -188,9 +181,9 @@ def main() -> None:
         feed(slam, step)
         if k == 10 or k % lap == 0 or k == len(scenario.steps):
             current, peak = tracemalloc.get_traced_memory()
-            print(f"| {k} | {vm_rss_mb():.1f} | {current / 2**20:.2f} | {peak / 2**20:.2f} |", flush=True)
+            print(f"| {k} | {proc_status_mb('VmRSS'):.1f} | {current / 2**20:.2f} | {peak / 2**20:.2f} |", flush=True)
     tracemalloc.stop()
-    print(f"process peak RSS (VmHWM, the whole script) {vm_hwm_mb():.1f} MB")
+    print(f"process peak RSS (VmHWM, the whole script) {proc_status_mb('VmHWM'):.1f} MB")
     print(f"\nload average at end {os.getloadavg()[0]:.2f}")
 
 
