@@ -3,10 +3,11 @@
 Works with every estimator of the package (``add_control``, ``add_odometry``,
 ``add_observations``, ``pose``).  Empty clouds carry no observation and are
 not fed (``empty_cloud``, unless the cloud reader emptied it: its points are
-already counted by reason, ``invalid_id`` and the like); observations before the first motion input have no
-pose to hang on (``no_motion_input``); a scan before the robot has travelled
-``filter.minimum_travel_*`` since the last used one is not used (``minimum_travel``, travel.py).  The trajectory is the estimator's pose
-after each observation message, once per estimator stamp: the node publishes it
+already counted by reason, ``invalid_id`` and the like); observations before the first
+motion input have no pose to hang on (``no_motion_input``); a scan before the robot has
+travelled ``filter.minimum_travel_*`` since the last used one is not used
+(``minimum_travel``, travel.py).  The trajectory is the estimator's pose after each
+observation message, once per estimator stamp: the node publishes it
 as ``~/path`` and the offline runner writes it as trajectory.csv, so the two
 are comparable point for point.
 
