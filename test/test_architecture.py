@@ -10,7 +10,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "online_em_slam"
 LAYERS = {"core": 0, "pipeline": 1, "messages": 1, "parameters": 1, "bag": 1, "baselines": 1,
           "offline": 2, "ros": 2, "datasets": 3, "experiments": 4}
 CORE_LAYERS = {"config": 0, "config_fields": 0, "noise_learning_config": 0, "types": 0, "models": 1,
-               "weighted": 2, "mapping": 3, "em": 4, "filter": 5, "__init__": 6}
+               "weighted": 2, "mapping": 3, "em": 4, "filter": 5, "fleet": 6, "__init__": 7}
 MAX_LINES = 500
 
 
@@ -52,7 +52,7 @@ def _graph() -> dict[str, set[str]]:
 def _layer(name: str) -> tuple[int, int]:
     parts = name.split(".")
     top = LAYERS.get(parts[1], -1) if len(parts) > 1 else 99
-    inner = CORE_LAYERS.get(parts[2] if len(parts) > 2 else "__init__", 6) if top == 0 else 0
+    inner = CORE_LAYERS.get(parts[2] if len(parts) > 2 else "__init__", 7) if top == 0 else 0
     return top, inner
 
 

@@ -2,8 +2,9 @@
 from .config import (AssociationConfig, EMConfig, FilterConfig, MotionConfig,
                      ObservationNoiseConfig, SensorConfig, SlamConfig)
 from .filter.slam import OnlineEMSlam
+from .fleet.slam import FleetSlam
 from .types import LandmarkMap, Observations, PoseEstimate, StepReport
 
 __all__ = ["AssociationConfig", "EMConfig", "FilterConfig", "MotionConfig", "ObservationNoiseConfig",
-           "SensorConfig", "SlamConfig", "OnlineEMSlam", "LandmarkMap", "Observations",
+           "SensorConfig", "SlamConfig", "OnlineEMSlam", "FleetSlam", "LandmarkMap", "Observations",
            "PoseEstimate", "StepReport"]

@@ -18,7 +18,7 @@ from ..config import SlamConfig
 from .step import FilterStepData
 from ..mapping.landmarks import LandmarkTable
 from ..models.observation import inv_det_2x2, landmark_jacobian, sensor_poses
-from .observed_information import ObservedInformation, StepFactors, motion_residual
+from .observed_information import POSE_DIM, ObservedInformation, StepFactors, motion_residual
 from .statistics import STAT_DIM, unpack
 
 # Under heavy-tailed noise a landmark's first observation cannot be checked against anything:
@@ -29,7 +29,11 @@ FIRST_OBSERVATION_WEIGHT = 1e-3
 
 
 class ObservedInformationEM:
-    """Segments of K filter steps; the map solved from the joint information at segment ends."""
+    """Segments of K filter steps; the map solved from the joint information at segment ends.
+
+    ``initial_pose`` (3,) for one robot; (R, 3) for a fleet (core/fleet/), whose robots
+    pass their index to :meth:`update` and :meth:`restart_pose`.
+    """
 
     def __init__(self, config: SlamConfig, initial_pose: np.ndarray) -> None:
         self.config = config
@@ -51,21 +55,25 @@ class ObservedInformationEM:
         self.system.keep_landmarks(keep)
         self.information = self.information[keep]
 
-    def update(self, data: FilterStepData, table: LandmarkTable) -> np.ndarray | None:
-        """Add the step's factors; at a segment end integrate its poses out and maybe solve."""
-        self.system.add_step(self._step_factors(data, table))
-        if not self._segment_ends(data.step):
+    def update(self, data: FilterStepData, table: LandmarkTable, robot: int = 0) -> np.ndarray | None:
+        """Add the step's factors; at a segment end integrate its poses out and maybe solve.
+
+        Returns ``robot``'s pose correction; the other robots' key poses keep their
+        linearisation points (their corrections stay in the system until their own solve)."""
+        self.system.add_step(self._step_factors(data, table), robot)
+        if not self._segment_ends(data.step, robot):
             return None
-        self.system.close_segment(table.theta)
+        self.system.close_segment(table.theta, robot)
         if not self._solve_now(data.step):
             return None
         solution = self.system.solve()
         if solution is None:
             self.failed_solves += 1
             return None
-        theta, pose_correction = solution
+        theta, key_corrections = solution
+        pose_correction = key_corrections[POSE_DIM * robot:POSE_DIM * (robot + 1)]
         table.theta[:] = theta
-        self.system.move_key(pose_correction)
+        self.system.move_key(pose_correction, robot)
         return pose_correction
 
     def _step_factors(self, data: FilterStepData, table: LandmarkTable) -> StepFactors:
@@ -87,10 +95,10 @@ class ObservedInformationEM:
         return StepFactors(pose, data.motion_jacobian, motion_residual(data.motion_mean, pose), data.motion_cov,
                            data.rows.copy(), data.y.copy(), precision)
 
-    def _segment_ends(self, step: int) -> bool:
+    def _segment_ends(self, step: int, robot: int) -> bool:
         if self.config.em.algorithm != "online" and step + 1 >= self.block_end:
             return True
-        return len(self.system.segment) >= self.config.em.segment_length
+        return len(self.system.segments[robot]) >= self.config.em.segment_length
 
     def _solve_now(self, step: int) -> bool:
         """Online EM solves at every segment end; Block Online EM only at block ends."""
@@ -103,12 +111,13 @@ class ObservedInformationEM:
         self.block_end = step + 1 + int(np.ceil(em.block_initial_length * self.block_index ** em.block_growth))
         return True
 
-    def restart_pose(self, pose: np.ndarray, pose_std, table: LandmarkTable, weights: np.ndarray | None = None) -> None:
-        """The filter was re-initialised at ``pose``: fold the open segment in, then
-        restart the key pose without a motion link (ObservedInformation.restart_key).
+    def restart_pose(self, pose: np.ndarray, pose_std, table: LandmarkTable, weights: np.ndarray | None = None,
+                     robot: int = 0) -> None:
+        """The filter (of ``robot``) was re-initialised at ``pose``: fold its open segment in,
+        then restart its key pose without a motion link (ObservedInformation.restart_key).
         The replaced particles' ``weights`` do not matter: the segment holds the mean pose."""
-        self.system.close_segment(table.theta)
-        self.system.restart_key(pose, pose_std)
+        self.system.close_segment(table.theta, robot)
+        self.system.restart_key(pose, pose_std, robot)
 
     # ------------------------------------------------------------ uncertainty
     def covariances(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
@@ -141,6 +150,6 @@ class ObservedInformationEM:
         m = theta.shape[0]
         self.add_landmarks(m)
         self.information[:] = A
-        lm = 3 + np.arange(2 * m).reshape(m, 2)
+        lm = self.system.key_dim + np.arange(2 * m).reshape(m, 2)
         self.system.info[lm[:, :, None], lm[:, None, :]] += A
-        self.system.vector[3:] += np.einsum("mij,mj->mi", A, theta).ravel()
+        self.system.vector[self.system.key_dim:] += np.einsum("mij,mj->mi", A, theta).ravel()

@@ -20,7 +20,9 @@ coordinates.  Factors, each a linear residual r = target - J z with information 
 
 The stored system is the information matrix and vector over z = [dx_key; theta],
 dx_key the correction of the latest kept pose: its size grows with the map,
-never with time.  The factors of a segment of K filter steps are buffered,
+never with time.  A fleet (core/fleet/) stores R key poses, z = [dx_key_1 ..
+dx_key_R; theta], and each robot's segments are closed against its own key block;
+R = 1 is the single robot.  The factors of a segment of K filter steps are buffered,
 linearised at the segment's end (so a landmark that moved during the segment
 is linearised where it is now), and all the segment's poses but its last are
 integrated out.  With one segment and no map update in between, the solve is
@@ -64,7 +66,11 @@ class StepFactors:
 
 
 class ObservedInformation:
-    """Information form over [dx_key; theta] plus the buffered factors of the open segment."""
+    """Information form over [dx_key_1 .. dx_key_R; theta] plus each robot's open segment.
+
+    ``initial_pose`` (3,) for one robot, (R, 3) for a fleet; the methods that touch a key
+    pose take the ``robot`` (0 .. R-1) whose key block they use.
+    """
 
     def __init__(self, sensor: SensorConfig, initial_pose, initial_pose_std,
                  first_estimates: bool = True, relinearize_threshold: float = np.inf) -> None:
@@ -72,17 +78,39 @@ class ObservedInformation:
         self.first_estimates = first_estimates
         self.relinearize_threshold = relinearize_threshold
         std = np.maximum(np.asarray(initial_pose_std, dtype=float), MIN_PRIOR_STD)
-        self.key_pose = np.asarray(initial_pose, dtype=float).copy()       # xbar of the key pose
-        self.key_first = self.key_pose.copy()                                 # its first estimate
-        self.landmark_first = np.zeros((0, 2))                                # NaN until first linearised
-        self.info = np.diag(1.0 / std ** 2)                                   # (3 + 2M, 3 + 2M)
-        self.vector = np.zeros(POSE_DIM)                                      # (3 + 2M,)
-        self.segment: list[StepFactors] = []
+        self.key_poses = np.asarray(initial_pose, dtype=float).reshape(-1, POSE_DIM).copy()   # xbar of each key
+        self.key_firsts = self.key_poses.copy()                                 # their first estimates
+        self.key_dim = POSE_DIM * self.key_poses.shape[0]                       # where theta starts
+        self.landmark_first = np.zeros((0, 2))                                  # NaN until first linearised
+        self.info = np.zeros((self.key_dim, self.key_dim))                      # (3R + 2M, 3R + 2M)
+        for r in range(self.key_poses.shape[0]):
+            self.info[self._key(r), self._key(r)] = np.diag(1.0 / std ** 2)
+        self.vector = np.zeros(self.key_dim)                                    # (3R + 2M,)
+        self.segments: list[list[StepFactors]] = [[] for _ in range(self.key_poses.shape[0])]
         self._covariance_cache: np.ndarray | None = None
 
     @property
     def n_landmarks(self) -> int:
-        return (self.info.shape[0] - POSE_DIM) // 2
+        return (self.info.shape[0] - self.key_dim) // 2
+
+    @property
+    def key_pose(self) -> np.ndarray:
+        """Robot 0's key pose xbar (the single robot's)."""
+        return self.key_poses[0]
+
+    @property
+    def key_first(self) -> np.ndarray:
+        return self.key_firsts[0]
+
+    @property
+    def segment(self) -> list[StepFactors]:
+        """Robot 0's open segment."""
+        return self.segments[0]
+
+    @staticmethod
+    def _key(robot: int) -> slice:
+        """Robot ``robot``'s key block in z."""
+        return slice(POSE_DIM * robot, POSE_DIM * (robot + 1))
 
     # ------------------------------------------------------------ map rows
     def add_landmarks(self, count: int) -> None:
@@ -108,52 +136,61 @@ class ObservedInformation:
         keep = np.asarray(keep, dtype=bool)
         self.landmark_first = self.landmark_first[keep]
         new_row = np.cumsum(keep) - 1
-        for step in self.segment:
+        for step in (step for segment in self.segments for step in segment):
             mask = keep[step.rows]
             step.rows, step.y, step.precision = new_row[step.rows[mask]], step.y[mask], step.precision[mask]
         if keep.all():
             return
-        lm = np.arange(POSE_DIM, self.info.shape[0]).reshape(-1, 2)
-        kept = np.concatenate([np.arange(POSE_DIM), lm[keep].ravel()])
+        lm = np.arange(self.key_dim, self.info.shape[0]).reshape(-1, 2)
+        kept = np.concatenate([np.arange(self.key_dim), lm[keep].ravel()])
         dropped = lm[~keep].ravel()
         self.info, self.vector = marginalize(self.info, self.vector, kept, dropped)
         self._covariance_cache = None
 
     # ------------------------------------------------------------ factors
-    def add_step(self, step: StepFactors) -> None:
-        self.segment.append(step)
+    def add_step(self, step: StepFactors, robot: int = 0) -> None:
+        self.segments[robot].append(step)
 
-    def close_segment(self, theta: np.ndarray) -> None:
-        """Linearise the buffered factors at (xbar_t, theta) and integrate out every
-        pose of the segment but its last, which becomes the key pose.
+    def close_segment(self, theta: np.ndarray, robot: int = 0) -> None:
+        """Linearise ``robot``'s buffered factors at (xbar_t, theta) and integrate out every
+        pose of its segment but the last, which becomes its key pose.
 
         Only the old key pose couples to the whole map, and the segment's poses see
         only the landmarks S observed in it: the factors go into a small system over
         [key, x_1..x_K, theta_S]; integrating [key, x_1..x_{K-1}] out changes the
         stored map block by a rank-3 term plus terms on x_K and theta_S
         (:func:`segment_schur`), O(M^2) with a small constant, not O((M + K)^3).
+        In a fleet the system is reordered so that the robot's key block comes first
+        (the other keys then sit with the map) and put back in order afterwards.
         """
-        if not self.segment:
+        segment = self.segments[robot]
+        if not segment:
             return
-        k = len(self.segment)
-        seen = np.unique(np.concatenate([s.rows for s in self.segment]))
+        k = len(segment)
+        seen = np.unique(np.concatenate([s.rows for s in segment]))
         n_pose = POSE_DIM * (k + 1)
         local = np.zeros((n_pose + 2 * seen.size,) * 2)
         local_vector = np.zeros(local.shape[0])
-        self._add_motion_factors(local, local_vector)
-        self._add_observation_factors(local, local_vector, theta, n_pose, seen)
-        local[:POSE_DIM, :POSE_DIM] += self.info[:POSE_DIM, :POSE_DIM]
-        local_vector[:POSE_DIM] += self.vector[:POSE_DIM]
-        lm = POSE_DIM + 2 * seen[:, None] + np.arange(2)
+        self._add_motion_factors(local, local_vector, robot)
+        self._add_observation_factors(local, local_vector, theta, n_pose, seen, robot)
+        key = self._key(robot)
+        local[:POSE_DIM, :POSE_DIM] += self.info[key, key]
+        local_vector[:POSE_DIM] += self.vector[key]
+        lm = self.key_dim + 2 * seen[:, None] + np.arange(2)
         small = np.concatenate([np.arange(POSE_DIM), lm.ravel()])      # x_K, theta_S in the new system
-        self.info, self.vector = segment_schur(self.info, self.vector, local, local_vector,
-                                               POSE_DIM * k, small)
-        self.key_pose = self.segment[-1].pose.copy()
-        self.key_first = self.key_pose.copy()
-        self.segment = []
+        order = np.r_[np.arange(key.start, key.stop), np.arange(key.start), np.arange(key.stop, self.vector.size)]
+        info, vector = (self.info, self.vector) if robot == 0 else (self.info[np.ix_(order, order)], self.vector[order])
+        info, vector = segment_schur(info, vector, local, local_vector, POSE_DIM * k, small)
+        if robot != 0:                                                 # back to [key_1 .. key_R; theta]
+            self.info[np.ix_(order, order)], self.vector[order] = info, vector
+        else:
+            self.info, self.vector = info, vector
+        self.key_poses[robot] = segment[-1].pose
+        self.key_firsts[robot] = segment[-1].pose
+        self.segments[robot] = []
         self._covariance_cache = None
 
-    def _add_motion_factors(self, info: np.ndarray, vector: np.ndarray) -> None:
+    def _add_motion_factors(self, info: np.ndarray, vector: np.ndarray, robot: int) -> None:
         """(M) for every step: J = [-F_t, I] on (dx_{t-1}, dx_t).
 
         With first-estimate Jacobians, F's yaw column is the displacement between
@@ -163,22 +200,24 @@ class ObservedInformation:
         Roumeliotis 2008), and the linearised system gains no false information
         about the map's orientation, which nothing but the first pose observes.
         """
-        F = np.stack([s.F for s in self.segment])                            # (K, 3, 3)
+        segment = self.segments[robot]
+        F = np.stack([s.F for s in segment])                                 # (K, 3, 3)
         if self.first_estimates:
-            firsts = np.stack([self.key_first] + [s.pose for s in self.segment])
+            firsts = np.stack([self.key_firsts[robot]] + [s.pose for s in segment])
             step = np.diff(firsts[:, :2], axis=0)
             F = F.copy()
             F[:, 0, 2], F[:, 1, 2] = -step[:, 1], step[:, 0]
-        W = symmetric_inverse_3x3(np.stack([s.Q for s in self.segment]))[0]
-        c = np.stack([s.c for s in self.segment])
+        W = symmetric_inverse_3x3(np.stack([s.Q for s in segment]))[0]
+        c = np.stack([s.c for s in segment])
         J = np.concatenate([-F, np.broadcast_to(np.eye(POSE_DIM), F.shape)], axis=-1)   # (K, 3, 6)
-        index = POSE_DIM * np.arange(len(self.segment))[:, None] + np.arange(2 * POSE_DIM)
+        index = POSE_DIM * np.arange(len(segment))[:, None] + np.arange(2 * POSE_DIM)
         _scatter(info, vector, index, J, W, c)
 
-    def _add_observation_factors(self, info, vector, theta, first_landmark: int, seen: np.ndarray) -> None:
+    def _add_observation_factors(self, info, vector, theta, first_landmark: int, seen: np.ndarray,
+                                 robot: int) -> None:
         """(O) for every observation: J = [H_x, H_l] on (dx_t, theta_k); landmark k sits
         at ``first_landmark + 2 * (its position in seen)``."""
-        steps = [(t, s) for t, s in enumerate(self.segment, start=1) if s.rows.size]
+        steps = [(t, s) for t, s in enumerate(self.segments[robot], start=1) if s.rows.size]
         if not steps:
             return
         step_of = np.concatenate([np.full(s.rows.size, t) for t, s in steps])
@@ -206,41 +245,45 @@ class ObservedInformation:
 
     # ------------------------------------------------------------ solve
     def solve(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """Minimiser of the stored quadratic: (theta (M, 2), dx_key (3,)), None if not positive definite."""
+        """Minimiser of the stored quadratic: (theta (M, 2), dx_keys (3R,): robot r's key
+        correction at [3r, 3r + 3)), None if not positive definite."""
         factor = self._factor()
         if factor is None:
             return None
         z = cho_solve(factor, self.vector)
         if not np.all(np.isfinite(z)):
             return None
-        return z[POSE_DIM:].reshape(-1, 2), z[:POSE_DIM]
+        return z[self.key_dim:].reshape(-1, 2), z[:self.key_dim]
 
-    def move_key(self, shift: np.ndarray) -> None:
-        """Re-express the system after the key pose's linearisation point moved by ``shift``:
+    def move_key(self, shift: np.ndarray, robot: int = 0) -> None:
+        """Re-express the system after ``robot``'s key pose linearisation point moved by ``shift``:
         dx_old = dx_new + shift, so the vector loses info[:, key] shift."""
-        self.vector = self.vector - self.info[:, :POSE_DIM] @ shift
-        self.key_pose = self.key_pose + shift
+        self.vector = self.vector - self.info[:, self._key(robot)] @ shift
+        self.key_poses[robot] = self.key_poses[robot] + shift
         if np.hypot(shift[0], shift[1]) > self.relinearize_threshold:
             # After a large correction (a loop closure) the first estimate would put
             # the whole shift into the next motion factor's yaw lever.
-            self.key_first = self.key_pose.copy()
+            self.key_firsts[robot] = self.key_poses[robot]
 
-    def restart_key(self, pose: np.ndarray, pose_std) -> None:
+    def restart_key(self, pose: np.ndarray, pose_std, robot: int = 0) -> None:
         """The robot was put at ``pose`` (an initial-pose message, a relocalisation):
         no motion links it to the old key pose, which is integrated out; the new key
-        pose enters with the prior N(pose, diag(pose_std)^2) and no tie to the map."""
-        if self.segment:
+        pose enters with the prior N(pose, diag(pose_std)^2) and no tie to the map
+        (nor to the other robots' key poses)."""
+        if self.segments[robot]:
             raise RuntimeError("close the segment before restarting the key pose")
         n = self.info.shape[0]
-        self.info, self.vector = marginalize(self.info, self.vector, np.arange(POSE_DIM, n), np.arange(POSE_DIM))
+        key = np.arange(self._key(robot).start, self._key(robot).stop)
+        rest = np.setdiff1d(np.arange(n), key)
+        marginal, marginal_vector = marginalize(self.info, self.vector, rest, key)
         std = np.maximum(np.asarray(pose_std, dtype=float), MIN_PRIOR_STD)
-        info = np.zeros((n, n))
-        info[:POSE_DIM, :POSE_DIM] = np.diag(1.0 / std ** 2)
-        info[POSE_DIM:, POSE_DIM:] = self.info
-        self.info = info
-        self.vector = np.concatenate([np.zeros(POSE_DIM), self.vector])
-        self.key_pose = np.asarray(pose, dtype=float).copy()
-        self.key_first = self.key_pose.copy()
+        self.info = np.zeros((n, n))
+        self.info[np.ix_(key, key)] = np.diag(1.0 / std ** 2)
+        self.info[np.ix_(rest, rest)] = marginal
+        self.vector = np.zeros(n)
+        self.vector[rest] = marginal_vector
+        self.key_poses[robot] = np.asarray(pose, dtype=float)
+        self.key_firsts[robot] = self.key_poses[robot]
         self._covariance_cache = None
 
     def landmark_covariances(self) -> np.ndarray | None:
@@ -250,7 +293,7 @@ class ObservedInformation:
             if factor is None:
                 return None
             inverse = cho_solve(factor, np.eye(self.info.shape[0]))
-            lm = np.arange(POSE_DIM, self.info.shape[0]).reshape(-1, 2)
+            lm = np.arange(self.key_dim, self.info.shape[0]).reshape(-1, 2)
             self._covariance_cache = inverse[lm[:, :, None], lm[:, None, :]]
         return self._covariance_cache
 

@@ -1,0 +1,116 @@
+"""Fleet mode of the estimator: R robots, one map (docs/METHOD.md, "Fleet mode").
+
+Each robot has its own particle filter (its pose), motion input, noise learner
+and initial pose (robot.py: the single-robot filter); the map is one parameter of
+every robot's hidden Markov model, so one observed-information system over
+[dx_key_1 .. dx_key_R; theta] (em/observed_information.py) takes every robot's
+segments, and one landmark table serves every robot's association: a landmark
+created by one robot is associated by all (known ids: the same id is the same
+landmark; unknown ids: the gates see the shared map).
+
+Each robot's inputs arrive in its own time order and are checked per robot; one
+robot's silence holds no other back.  A robot's filter step closes its own
+segment; the map is solved at the segment ends of any robot.
+"""
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import replace
+
+import numpy as np
+
+from ..config import SlamConfig
+from ..em.observed import ObservedInformationEM
+from ..types import LandmarkMap, Observations, PoseEstimate, StepReport
+from .robot import FleetRobot
+from .shared_map import FleetLandmarkTable, RobotMStep
+
+
+class FleetSlam:
+    """Particle online EM SLAM of R robots sharing one landmark map.
+
+    ``initial_poses`` (R, 3): each robot's start in the map frame (its prior, as the
+    single robot's ``initial_pose``).  Robot r's filter draws from ``filter.seed + r``.
+
+    Not in fleet mode: the complete-data M-step (``em.m_step = complete``: its
+    statistics are smoothed over one robot's particles; a ValueError), and the
+    warm-up replay (``noise_learning.replay_warmup`` is turned off: replaying one
+    robot's warm-up would restart its filter but not the shared map, which holds the
+    first pass's factors already).
+    """
+
+    def __init__(self, config: SlamConfig | None = None, initial_poses=((0.0, 0.0, 0.0),),
+                 stamp: float | None = None) -> None:
+        config = (config or SlamConfig()).validate()
+        if config.em.m_step != "observed":
+            raise ValueError(f"fleet mode needs em.m_step = observed, got {config.em.m_step!r}: the "
+                             "complete-data M-step keeps statistics smoothed over one robot's particles")
+        poses = np.asarray(initial_poses, dtype=float)
+        if poses.ndim != 2 or poses.shape[1] != 3 or not poses.shape[0] or not np.all(np.isfinite(poses)):
+            raise ValueError(f"initial_poses must be R >= 1 finite (x, y, yaw) rows, got shape {poses.shape}")
+        self.config = replace(config, noise_learning=replace(config.noise_learning, replay_warmup=False))
+        self._m_step = ObservedInformationEM(self.config, poses)
+        self._map = FleetLandmarkTable(clock=self._clock)
+        self._robots = [FleetRobot(self._robot_config(r), poses[r], stamp, self._map, RobotMStep(self._m_step, r))
+                        for r in range(poses.shape[0])]
+
+    def _robot_config(self, robot: int) -> SlamConfig:
+        seed = self.config.filter.seed
+        return replace(self.config, filter=replace(self.config.filter, seed=None if seed is None else seed + robot))
+
+    def _clock(self) -> int:
+        """The fleet's step count: the most filter steps any robot has made."""
+        return max(robot.step_count for robot in self._robots)
+
+    def robot(self, robot: int) -> FleetRobot:
+        """Robot ``robot``'s filter (0 .. R-1): its ``drops``, ``learned_noise()``, ``effective_sample_size``."""
+        if not 0 <= robot < len(self._robots):
+            raise ValueError(f"robot {robot} is not in the fleet of {len(self._robots)}")
+        return self._robots[robot]
+
+    @property
+    def n_robots(self) -> int:
+        return len(self._robots)
+
+    @property
+    def step_count(self) -> int:
+        """Filter steps of all robots together."""
+        return sum(robot.step_count for robot in self._robots)
+
+    @property
+    def drops(self) -> Counter:
+        """Every robot's dropped inputs, by reason."""
+        return sum((robot.drops for robot in self._robots), Counter())
+
+    # ------------------------------------------------------------------ inputs
+    def add_control(self, robot: int, stamp: float, control) -> bool:
+        """Robot ``robot``'s control, valid from ``stamp`` on (OnlineEMSlam.add_control)."""
+        return self.robot(robot).add_control(stamp, control)
+
+    def add_odometry(self, robot: int, stamp: float, odom_pose) -> bool:
+        """Robot ``robot``'s odometry-frame pose (OnlineEMSlam.add_odometry)."""
+        return self.robot(robot).add_odometry(stamp, odom_pose)
+
+    def add_observations(self, robot: int, stamp: float, observations: Observations) -> StepReport:
+        """Robot ``robot``'s scan: one filter step of its filter, its segment's factors to the
+        shared map, the map solved at its segment end (OnlineEMSlam.add_observations)."""
+        return self.robot(robot).add_observations(stamp, observations)
+
+    def set_pose(self, robot: int, pose, std=None) -> None:
+        """Put robot ``robot`` at ``pose``: only its key pose restarts (OnlineEMSlam.set_pose)."""
+        self.robot(robot).set_pose(pose, std)
+
+    def relocalise(self, robot: int, pose, std=None) -> None:
+        """Robot ``robot`` is near ``pose`` on the fleet's map (OnlineEMSlam.relocalise)."""
+        self.robot(robot).relocalise(pose, std)
+
+    # ------------------------------------------------------------------ outputs
+    def pose(self, robot: int) -> PoseEstimate:
+        return self.robot(robot).pose()
+
+    def particles(self, robot: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.robot(robot).particles()
+
+    def landmarks(self, confirmed_only: bool = False) -> LandmarkMap:
+        """The fleet's map theta with covariances and observation counts (every robot's)."""
+        return self._robots[0].landmarks(confirmed_only)
