@@ -290,13 +290,14 @@ def run_noise(cfg: ScenarioConfig, n_steps: int, n_landmarks: int, lap_ends: np.
     return tuple(np.concatenate(parts) for parts in zip(*laps))
 
 
-def simulate(cfg: ScenarioConfig | None = None) -> Scenario:
+def simulate(cfg: ScenarioConfig | None = None, landmarks: np.ndarray | None = None) -> Scenario:
     """Simulate one run: true trajectory (S1), noisy controls (S2), scans (S3).
 
     With ``cfg.laps > 0`` the returned ``config.n_steps`` is the derived run length.
+    ``landmarks`` (M, 2) replace the layout of ``cfg`` (:func:`fleet_scenarios`).
     """
     cfg = cfg or ScenarioConfig()
-    landmarks = landmark_layout(cfg)
+    landmarks = landmark_layout(cfg) if landmarks is None else np.asarray(landmarks, dtype=float)
     poses, true_controls, lap_ends = drive_route(cfg)
     if cfg.laps > 0:
         cfg = replace(cfg, n_steps=len(true_controls))
@@ -325,6 +326,20 @@ def simulate(cfg: ScenarioConfig | None = None) -> Scenario:
                              outlier=outlier[k, seen]))
     return Scenario(config=cfg, true_poses=poses, landmarks=landmarks, true_controls=true_controls,
                     controls=controls, stamps=stamps, steps=steps, lap_ends=lap_ends)
+
+
+def fleet_scenarios(cfg: ScenarioConfig, n_robots: int) -> list[Scenario]:
+    """``n_robots`` runs among the one landmark layout of ``cfg`` (same ids for every robot):
+    robot r drives the route from waypoint floor(r W / R) on (the waypoints rotated), its
+    noise drawn with seed ``cfg.seed + r``.  The robots' true starts are their
+    ``initial_pose`` in the common frame (the fleet's initial poses)."""
+    landmarks = landmark_layout(cfg)
+    scenarios = []
+    for robot in range(n_robots):
+        k = robot * len(cfg.waypoints) // n_robots
+        waypoints = tuple(cfg.waypoints[k:]) + tuple(cfg.waypoints[:k])
+        scenarios.append(simulate(replace(cfg, waypoints=waypoints, seed=cfg.seed + robot), landmarks))
+    return scenarios
 
 
 def slam_config_for(scenario: Scenario | ScenarioConfig, num_particles: int = 100,
