@@ -60,5 +60,20 @@ class RobotMStep:
     def restart_pose(self, pose: np.ndarray, pose_std, table: LandmarkTable, weights: np.ndarray | None = None) -> None:
         self.shared.restart_pose(pose, pose_std, table, weights, self.robot)
 
-    def __getattr__(self, name: str):
-        return getattr(self.shared, name)
+    def add_landmarks(self, count: int) -> None:
+        self.shared.add_landmarks(count)
+
+    def keep_landmarks(self, keep: np.ndarray) -> None:
+        self.shared.keep_landmarks(keep)
+
+    def covariances(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        return self.shared.covariances(rows)
+
+    def map_covariances(self) -> np.ndarray:
+        return self.shared.map_covariances()
+
+    def saved_arrays(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        return self.shared.saved_arrays(theta)
+
+    def restore(self, arrays: dict[str, np.ndarray], theta: np.ndarray) -> None:
+        self.shared.restore(arrays, theta)
