@@ -1,5 +1,6 @@
-"""``online-em-slam-convert DATASET OUTPUT``: a KTH data set (car_park, victoria_park) or one
-robot of UTIAS MRCLAM as a ROS 2 bag the node and ``online-em-slam run`` consume."""
+"""``online-em-slam-convert DATASET OUTPUT``: a KTH data set (car_park, victoria_park), one
+robot of UTIAS MRCLAM, or all five (``--all-robots``: one bag, a namespace per robot) as a
+ROS 2 bag the node and ``online-em-slam run`` consume."""
 from __future__ import annotations
 
 import argparse
@@ -9,18 +10,21 @@ from pathlib import Path
 
 from .kth.convert import STREAM_BUILDERS, convert, dir_size
 from .mrclam.convert import run_cli
+from .mrclam.fleet_convert import run_fleet_cli
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="online-em-slam-convert",
-        description="Convert a KTH SLAM dataset (ACFR ute) or one robot of UTIAS MRCLAM to a ROS 2 bag.")
+        description="Convert a KTH SLAM dataset (ACFR ute) or UTIAS MRCLAM (one robot, or all) to a ROS 2 bag.")
     parser.add_argument("dataset", choices=sorted(STREAM_BUILDERS) + ["mrclam"])
     parser.add_argument("output", help="bag directory to create")
     parser.add_argument("--data-dir", default=None,
                         help="directory holding car_park/ and victoria_park/ (default: packaged data, "
                              "or $ONLINE_EM_SLAM_DATA); mrclam: the MRCLAM_DatasetN directory or its .tar.xz")
     parser.add_argument("--robot", type=int, default=None, help="mrclam only (required): robot 1-5")
+    parser.add_argument("--all-robots", action="store_true",
+                        help="mrclam only: all five robots in one bag, topics under /robot1 .. /robot5")
     parser.add_argument("--seconds", type=float, default=None,
                         help="mrclam only: keep the first S seconds of every stream")
     parser.add_argument("--unknown-ids", action="store_true",
@@ -33,9 +37,10 @@ def main(argv=None) -> int:
                              "GPS-derived initial pose, whose map frame is the gps frame)")
     args = parser.parse_args(argv)
     if args.dataset == "mrclam":
-        return run_cli(args)
-    if args.robot is not None or args.seconds is not None or args.unknown_ids:
-        print("online-em-slam-convert: error: --robot, --seconds and --unknown-ids are for mrclam only",
+        return run_fleet_cli(args) if args.all_robots else run_cli(args)
+    if args.robot is not None or args.seconds is not None or args.unknown_ids or args.all_robots:
+        print("online-em-slam-convert: error: --robot, --all-robots, --seconds and --unknown-ids are for "
+              "mrclam only",
               file=sys.stderr)
         return 1
     t0 = time.monotonic()

@@ -268,7 +268,7 @@ def run_cli(args) -> int:
         return 1
 
     if args.robot is None:
-        return fail("mrclam needs --robot K (1-5)")
+        return fail("mrclam needs --robot K (1-5) or --all-robots")
     if args.data_dir is None:
         return fail("mrclam needs --data-dir (the MRCLAM_DatasetN directory or its .tar.xz)")
     if args.no_map_to_gps:
