@@ -1,6 +1,7 @@
 """Offline runner: a bag straight into an estimator (no DDS), deterministic for a seed.
 
     online-em-slam run BAG --params FILE --output DIR [--method online_em|ekf_slam|fastslam2|marginal_slam]
+                       [--fleet]
                        [--seed S] [--particles N] [--initial-pose auto|ground_truth|gps|params|X,Y,YAW]
                        [--match-gate M] [--align] [--no-plot]
     online-em-slam compare BAG --params FILE --output DIR [--methods ...] [--seed S] ...
@@ -45,6 +46,12 @@ the bag has them), ``noise.yaml`` (online EM: the parameter file with the noise
 it learned; :func:`online_em_slam.offline.report.write_noise_params`) and ``map.png``.  Landmark metrics count the landmarks seen at
 least ``association.confirm_observations`` times (the confirmed ones).
 
+``run --fleet`` takes a fleet bag (``online-em-slam-convert mrclam OUT --all-robots``: each
+robot's topics under ``/robotK``) and runs every robot into one online EM fleet
+(:mod:`online_em_slam.offline.fleet_runner`): DIR/landmarks.csv (the joint map),
+DIR/robotK/trajectory.csv, metrics.json with the joint map's landmark metrics and each
+robot's trajectory metrics under ``robots``.
+
 ``compare`` runs several methods on the same bag (DIR/<method>/ as ``run``) and
 writes ``comparison.md`` and ``comparison.json``.
 """
@@ -64,6 +71,18 @@ from .runner import METHODS, choose_initial_pose, read_inputs, run_one
 
 def prepare(args) -> tuple:
     """(config, settings, file values, inputs, initial pose) from the common arguments."""
+    config, settings, file_values = read_parameters(args)
+    inputs = read_inputs(args.bag, settings)
+    if not inputs.events:
+        raise ValueError(f"{args.bag}: no inputs on the configured topics "
+                         f"({settings.control_topic if settings.motion_source == 'control' else settings.odom_topic}, "
+                         f"{settings.observations_topic})")
+    initial = choose_initial_pose(args.initial_pose, inputs, config, settings, file_values)
+    return config, settings, file_values, inputs, initial
+
+
+def read_parameters(args) -> tuple:
+    """(config, settings, file values) from ``--params`` (merged in order), ``--seed`` and ``--particles``."""
     per_file, file_values = [], {}
     for path in args.params:
         try:
@@ -80,13 +99,7 @@ def prepare(args) -> tuple:
         config, settings = config_from_params(file_values, overrides)
     except ParameterError as error:
         raise ParameterError(f"{_culprit(per_file)}{error}") from None
-    inputs = read_inputs(args.bag, settings)
-    if not inputs.events:
-        raise ValueError(f"{args.bag}: no inputs on the configured topics "
-                         f"({settings.control_topic if settings.motion_source == 'control' else settings.odom_topic}, "
-                         f"{settings.observations_topic})")
-    initial = choose_initial_pose(args.initial_pose, inputs, config, settings, file_values)
-    return config, settings, file_values, inputs, initial
+    return config, settings, file_values
 
 
 def _culprit(per_file) -> str:
@@ -110,6 +123,12 @@ def _params_label(args) -> str:
 
 
 def cmd_run(args) -> int:
+    if args.fleet:
+        if args.method != "online_em":
+            raise ValueError(f"--fleet runs online EM's fleet mode; --method {args.method} has none")
+        from .fleet_runner import cmd_run_fleet
+        config, settings, file_values = read_parameters(args)
+        return cmd_run_fleet(args, config, settings, file_values, {"params": _params_label(args)})
     config, _, file_values, inputs, initial = prepare(args)
     metrics = run_one(inputs, config, args.method, initial, Path(args.output), **_run_options(args, file_values))
     print(summary_line(metrics))
@@ -164,6 +183,9 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run one method on a bag")
     common(run)
     run.add_argument("--method", choices=METHODS, default="online_em")
+    run.add_argument("--fleet", action="store_true",
+                     help="a fleet bag (robots under /robot1, /robot2, ...): every robot into one online EM "
+                          "fleet, one joint map (online_em_slam.offline.fleet_runner)")
     run.set_defaults(func=cmd_run)
     compare = sub.add_parser("compare", help="run several methods on a bag and tabulate them")
     common(compare)

@@ -80,8 +80,8 @@ class BagEvents:
     topics (so ``not events`` says there are none).
     """
 
-    def __init__(self, bag, settings, count: int) -> None:
-        self.bag, self.settings, self.count = bag, settings, int(count)
+    def __init__(self, bag, settings, count: int, namespace: str = "") -> None:
+        self.bag, self.settings, self.count, self.namespace = bag, settings, int(count), namespace
 
     def __len__(self) -> int:
         return self.count
@@ -92,7 +92,7 @@ class BagEvents:
     def stream(self, refused: Counter):
         from ..bag.bagio import read_bag_timed
 
-        reader = BagReader(self.settings, keep_poses=False)
+        reader = BagReader(self.settings, keep_poses=False, namespace=self.namespace)
         reader.refused = refused
         for topic, stamp, msg, log_time in read_bag_timed(self.bag, reader.input_topics):
             reader.handlers[topic](stamp, msg)
@@ -101,21 +101,28 @@ class BagEvents:
                 yield kind, stamp, payload, log_time
 
 
+def namespaced(namespace: str, topic: str) -> str:
+    """The bag topic of a node topic in ``namespace`` ("" or "/robot1"): "/robot1/odom"."""
+    return absolute_topic(topic) if not namespace else namespace.rstrip("/") + absolute_topic(topic)
+
+
 class BagReader:
     """A bag's messages to inputs, one handler per topic: motion and observation messages
     become events (kind, stamp, payload) queued in ``events`` until taken; odometry poses
-    (``keep_poses``), GPS and the surveyed landmarks are collected."""
+    (``keep_poses``), GPS and the surveyed landmarks are collected.  ``namespace`` ("/robot1"):
+    one robot's topics of a fleet bag, ground truth included; the survey is the fleet's."""
 
-    def __init__(self, settings, keep_poses: bool = True):
+    def __init__(self, settings, keep_poses: bool = True, namespace: str = ""):
         self.motion_source = settings.motion_source
         self.keep_poses = keep_poses
-        odom, observations = absolute_topic(settings.odom_topic), absolute_topic(settings.observations_topic)
+        odom, observations = (namespaced(namespace, t) for t in (settings.odom_topic, settings.observations_topic))
         self.handlers = {observations: self.observations, odom: self.odometry,
-                         GT_POSITION_TOPIC: self.gps, GT_POSE_TOPIC: self.ground_truth_pose,
+                         namespaced(namespace, GT_POSITION_TOPIC): self.gps,
+                         namespaced(namespace, GT_POSE_TOPIC): self.ground_truth_pose,
                          GT_LANDMARKS_TOPIC: self.surveyed_landmarks}
         self.event_topics = {observations}
         if settings.motion_source == "control":
-            control = absolute_topic(settings.control_topic)
+            control = namespaced(namespace, settings.control_topic)
             self.handlers[control] = self.control
             self.event_topics.add(control)
         else:
@@ -169,12 +176,13 @@ class BagReader:
         self.landmark_ids = np.asarray(cols["id"], dtype=int) if "id" in cols else np.arange(len(self.landmarks))
 
 
-def check_bag_topics(bag, settings) -> None:
+def check_bag_topics(bag, settings, namespace: str = "") -> None:
     """Refuse (BagError, one line naming the bag) an empty bag, or one whose topics carry another
     message type than the node reads there, or two types."""
     from ..bag.bagio import BagError, bag_connections, node_topic_types, type_problems
 
-    expected = node_topic_types(settings.odom_topic, settings.control_topic, settings.observations_topic)
+    expected = node_topic_types(*(namespaced(namespace, t) for t in
+                                  (settings.odom_topic, settings.control_topic, settings.observations_topic)))
     connections = bag_connections(bag)
     problems = type_problems([(topic, msgtype) for topic, msgtype, _ in connections], expected)
     if problems:
@@ -183,30 +191,32 @@ def check_bag_topics(bag, settings) -> None:
         raise BagError(f"{bag}: the bag holds no messages")
 
 
-def check_inputs_present(bag, settings, counts: Counter) -> None:
+def check_inputs_present(bag, settings, counts: Counter, namespace: str = "") -> None:
     """Refuse (BagError) a bag without motion input or without observations (``counts``: messages
     read per topic)."""
     from ..bag.bagio import BagError
 
-    motion = absolute_topic(settings.control_topic if settings.motion_source == "control" else settings.odom_topic)
+    motion = namespaced(namespace, settings.control_topic if settings.motion_source == "control"
+                        else settings.odom_topic)
     if not counts[motion]:
         raise BagError(f"{bag}: no motion input: no messages on {motion} (motion_source: {settings.motion_source})")
-    observations = absolute_topic(settings.observations_topic)
+    observations = namespaced(namespace, settings.observations_topic)
     if not counts[observations]:
         raise BagError(f"{bag}: no observations: no messages on {observations}, nothing to map")
 
 
-def read_inputs(bag, settings) -> BagInputs:
+def read_inputs(bag, settings, namespace: str = "") -> BagInputs:
     """First pass over ``bag`` (settings: NodeSettings): odometry poses, GPS, surveyed landmarks,
-    message counts and the first input's stamp; the inputs themselves stream from ``events``."""
+    message counts and the first input's stamp; the inputs themselves stream from ``events``.
+    ``namespace`` ("/robot1"): that robot's inputs of a fleet bag."""
     from ..bag.bagio import read_bag_timed
 
-    check_bag_topics(bag, settings)
-    reader = BagReader(settings)
+    check_bag_topics(bag, settings, namespace)
+    reader = BagReader(settings, namespace=namespace)
     start = None
 
     def decode(topic: str) -> bool:          # input clouds and controls: only the first is decoded
-        return start is None or topic not in reader.event_topics or topic == absolute_topic(settings.odom_topic)
+        return start is None or topic not in reader.event_topics or topic == namespaced(namespace, settings.odom_topic)
 
     for topic, stamp, msg, _ in read_bag_timed(bag, set(reader.handlers), decode):
         reader.counts[topic] += 1
@@ -215,9 +225,9 @@ def read_inputs(bag, settings) -> BagInputs:
         if reader.events:
             start = reader.events[0][1] if start is None else start
             reader.events.clear()
-    check_inputs_present(bag, settings, reader.counts)
+    check_inputs_present(bag, settings, reader.counts, namespace)
     n_inputs = sum(reader.counts[t] for t in reader.event_topics)
-    return BagInputs(str(bag), BagEvents(bag, settings, n_inputs if start is not None else 0),
+    return BagInputs(str(bag), BagEvents(bag, settings, n_inputs if start is not None else 0, namespace),
                      np.asarray(reader.odom_t, dtype=float), np.asarray(reader.odom_p, dtype=float).reshape(-1, 3),
                      np.asarray(reader.gps_t, dtype=float), np.asarray(reader.gps_xy, dtype=float).reshape(-1, 2),
                      reader.landmarks, reader.landmark_ids,

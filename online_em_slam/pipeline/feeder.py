@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass
+from typing import Callable
 
 from .inputs import CONTROL, ODOMETRY, Input
 from .rollback import Rollback
@@ -36,8 +37,13 @@ class Fed:
 
 
 class Feeder:
-    def __init__(self, estimator, motion_source: str, drops: Counter | None = None) -> None:
+    """``rollback``: makes the estimator's :class:`~.rollback.Rollback` (a fleet robot's undoes
+    the whole fleet: pipeline/fleet.py)."""
+
+    def __init__(self, estimator, motion_source: str, drops: Counter | None = None,
+                 rollback: Callable[[object], Rollback] = Rollback) -> None:
         self.estimator = estimator
+        self.make_rollback = rollback
         self.motion_kind = ODOMETRY if motion_source == "odom" else CONTROL
         self.drops = drops if drops is not None else Counter()
         self.reset(estimator)
@@ -45,7 +51,7 @@ class Feeder:
     def reset(self, estimator) -> None:
         """Feed ``estimator`` from now on; call after any change made to it outside :meth:`apply`."""
         self.estimator = estimator
-        self.rollback = Rollback(estimator)
+        self.rollback = self.make_rollback(estimator)
         self.motion_seen = False
         self.last_point_stamp: float | None = None
         self.travel = MinimumTravel.from_config(getattr(estimator, "config", None))
