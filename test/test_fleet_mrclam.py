@@ -168,3 +168,34 @@ def test_fleet_pipeline_undoes_a_failing_input_on_the_whole_fleet():
     for robot in (0, 1):
         np.testing.assert_allclose(fleet.pose(robot).mean, clean.pose(robot).mean, rtol=0, atol=1e-9)
     assert len(clean.landmarks()) == 3
+
+
+def test_fleet_batch_puts_the_robots_problems_end_to_end():
+    from online_em_slam.offline.batch import InputsProblem
+    from online_em_slam.offline.fleet_batch import end_to_end
+
+    def problem(n_poses, obs_pose, ids):
+        return InputsProblem(np.arange(n_poses, dtype=float), np.ones((n_poses - 1, 3)),
+                             np.tile(np.eye(3), (n_poses - 1, 1, 1)), np.asarray(obs_pose), np.asarray(ids),
+                             np.ones((len(ids), 2)), np.tile(np.eye(2), (len(ids), 1, 1)), Counter(a=1))
+
+    joint = end_to_end([problem(3, [1, 2], [6, 7]), problem(4, [1, 3, 3], [7, 8, 9])])
+    assert joint.chain_starts == (0, 3) and len(joint.stamps) == 7
+    assert joint.increments.shape == (6, 3) and np.all(joint.increments[2] == 0)     # into robot 2's start: unused
+    assert joint.obs_pose.tolist() == [1, 2, 4, 6, 6] and joint.obs_id.tolist() == [6, 7, 7, 8, 9]
+    assert joint.skipped == Counter(a=2)
+
+
+@pytest.mark.skipif(not REAL_DATASET1.is_file(), reason=f"{REAL_DATASET1} not present")
+def test_real_dataset1_two_robots_fleet_batch_60_s(tmp_path, capsys):
+    pytest.importorskip("gtsam")
+    from online_em_slam.offline.fleet_batch import main
+    bag = tmp_path / "bag"
+    write_fleet_bag(load_fleet(REAL_DATASET1, 60.0, robots=(1, 2)), bag, progress=False)
+    out = tmp_path / "batch"
+    assert main([str(bag), "--params", str(PARAMS), "--output", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["landmarks"]["n_matched"] >= 10 and metrics["landmarks"]["shape_error"] < 0.5
+    for robot in ("robot1", "robot2"):
+        assert metrics["robots"][robot]["trajectory"]["rmse"] < 0.5
+        assert (out / robot / "trajectory.csv").is_file()

@@ -83,6 +83,9 @@ class InputsProblem:
     obs_y: np.ndarray                  # (P, 2) range, bearing (sensor frame)
     obs_R: np.ndarray                  # (P, 2, 2) in (range, bearing) order
     skipped: Counter
+    #: Pose variables that start a chain (a robot's first pose: a prior, no motion into it); a fleet's
+    #: problems put end to end (offline/fleet_batch.py) have one per robot.
+    chain_starts: tuple = (0,)
 
 
 class _MotionBook:
@@ -215,11 +218,21 @@ def collect_problem(events, config: SlamConfig, motion_source: str | None = None
                          Counter({k: v for k, v in skipped.items() if v}))
 
 
+def chain_starts(problem: InputsProblem, initial_pose) -> dict[int, np.ndarray]:
+    """{pose variable: its chain's initial pose}: ``initial_pose`` (3,) or one (C, 3) row per chain."""
+    starts = np.asarray(initial_pose, dtype=float).reshape(-1, 3)
+    if len(starts) != len(problem.chain_starts):
+        raise ValueError(f"{len(problem.chain_starts)} chains need as many initial poses, got {len(starts)}")
+    return {int(k): pose for k, pose in zip(problem.chain_starts, starts)}
+
+
 def initial_guess(problem: InputsProblem, config: SlamConfig, initial_pose) -> tuple:
-    """Dead reckoning (T, 3); landmark ids (M,) ascending and each at its first observation (M, 2)."""
-    poses = [np.asarray(initial_pose, dtype=float).reshape(3)]
-    for increment in problem.increments:
-        poses.append(compose(poses[-1], increment))
+    """Dead reckoning (T, 3) from each chain's initial pose; landmark ids (M,) ascending and each at its
+    first observation (M, 2)."""
+    starts = chain_starts(problem, initial_pose)
+    poses = [starts[0]]
+    for k, increment in enumerate(problem.increments, start=1):
+        poses.append(starts[k] if k in starts else compose(poses[-1], increment))
     poses = np.array(poses)
     ids, first = np.unique(problem.obs_id, return_index=True)
     sensor = sensor_poses(poses[problem.obs_pose[first]], config.sensor)
@@ -278,6 +291,14 @@ def batch_from_inputs(events, config: SlamConfig, initial_pose, max_iterations: 
     problem = collect_problem(events, config, motion_source)
     if not problem.stamps.size:
         raise ValueError("batch_from_inputs: no motion input in the events")
+    return solve_problem(problem, config, initial_pose, max_iterations, initial_pose_std, init)
+
+
+def solve_problem(problem: InputsProblem, config: SlamConfig, initial_pose, max_iterations: int = 100,
+                  initial_pose_std: tuple[float, float, float] = (1e-3, 1e-3, 1e-4),
+                  init: str = "dead_reckoning") -> InputsBatchResult:
+    """The batch ML optimum of a collected problem (:func:`batch_from_inputs`); ``initial_pose``: one
+    (x, y, yaw) per chain of ``problem.chain_starts``."""
     started = time.perf_counter()
     import gtsam  # optional dependency, see gtsam_batch
 
@@ -306,7 +327,8 @@ def build_graph(gtsam, problem: InputsProblem, config: SlamConfig, poses: np.nda
     ``poses`` (T, 3), landmarks ``ids`` (M,) at ``landmarks`` (M, 2)."""
     X, L = symbols(gtsam)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    graph.add(_prior(gtsam, poses[0], initial_pose_std))
+    for k in problem.chain_starts:
+        graph.add(_prior(gtsam, poses[k], initial_pose_std, k))
     for k, pose in enumerate(poses):
         values.insert(X(k), gtsam.Pose2(*pose))
     for j, guess in zip(ids, landmarks):
@@ -318,8 +340,8 @@ def build_graph(gtsam, problem: InputsProblem, config: SlamConfig, poses: np.nda
     return graph, values
 
 
-def _prior(gtsam, pose, initial_pose_std):
-    return gtsam.PriorFactorPose2(symbols(gtsam)[0](0), gtsam.Pose2(*pose),
+def _prior(gtsam, pose, initial_pose_std, k: int = 0):
+    return gtsam.PriorFactorPose2(symbols(gtsam)[0](int(k)), gtsam.Pose2(*pose),
                                   gtsam.noiseModel.Diagonal.Sigmas(np.asarray(initial_pose_std, float)))
 
 
@@ -330,16 +352,19 @@ def incremental_guess(gtsam, problem: InputsProblem, config: SlamConfig, initial
     its first observation from there.  A long run's dead reckoning can be metres off,
     and Levenberg-Marquardt from it may stop in a local minimum; this follows the optimum."""
     X, L = symbols(gtsam)
+    starts = chain_starts(problem, initial_pose)
     isam = gtsam.ISAM2()
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    graph.add(_prior(gtsam, initial_pose, initial_pose_std))
-    values.insert(X(0), gtsam.Pose2(*np.asarray(initial_pose, dtype=float)))
+    graph.add(_prior(gtsam, starts[0], initial_pose_std))
+    values.insert(X(0), gtsam.Pose2(*starts[0]))
     isam.update(graph, values)
     by_pose = np.searchsorted(problem.obs_pose, np.arange(len(problem.stamps) + 1))
-    previous, placed = np.asarray(initial_pose, dtype=float), set()
+    previous, placed = starts[0], set()
     for k in range(1, len(problem.stamps)):
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        pose = compose(previous, problem.increments[k - 1])
+        pose = starts[k] if k in starts else compose(previous, problem.increments[k - 1])
+        if k in starts:
+            graph.add(_prior(gtsam, pose, initial_pose_std, k))
         values.insert(X(k), gtsam.Pose2(*pose))
         sensor = sensor_poses(pose, config.sensor)
         for j, y in zip(problem.obs_id[by_pose[k]:by_pose[k + 1]], problem.obs_y[by_pose[k]:by_pose[k + 1]]):
@@ -358,12 +383,13 @@ def incremental_guess(gtsam, problem: InputsProblem, config: SlamConfig, initial
 
 
 def _add_step(gtsam, graph, problem: InputsProblem, config: SlamConfig, k: int, by_pose: np.ndarray) -> None:
-    """The between factor into pose k and the bearing-range factors of scan k."""
+    """The between factor into pose k (none into a chain's start) and the bearing-range factors of scan k."""
     X, L = symbols(gtsam)
-    increment = problem.increments[k - 1]
-    cov = tangent_covariance(increment, problem.motion_covariances[k - 1])
-    graph.add(gtsam.BetweenFactorPose2(X(k - 1), X(k), gtsam.Pose2(*increment),
-                                       gtsam.noiseModel.Gaussian.Covariance(cov)))
+    if k not in problem.chain_starts:
+        increment = problem.increments[k - 1]
+        cov = tangent_covariance(increment, problem.motion_covariances[k - 1])
+        graph.add(gtsam.BetweenFactorPose2(X(k - 1), X(k), gtsam.Pose2(*increment),
+                                           gtsam.noiseModel.Gaussian.Covariance(cov)))
     rows = slice(by_pose[k], by_pose[k + 1])
     sensor = config.sensor
     offset = (sensor.offset_x, sensor.offset_y, sensor.offset_yaw)

@@ -14,7 +14,7 @@ at its first input (``--initial-pose auto`` or ``ground_truth``, as a single run
 MRCLAM bag) and draws from ``filter.seed + r``.
 
 Outputs in DIR: ``landmarks.csv`` (the joint map, as a single run's), ``<robotK>/trajectory.csv``
-(and TUM files) per robot, ``metrics.json``: the joint map scored as a single run's map
+(and TUM files) and ``<robotK>/noise.yaml`` (the noise it learned, as a single run's) per robot, ``metrics.json``: the joint map scored as a single run's map
 (:func:`..report.evaluate`: by id with known ids, within the match gate, shape after the rigid
 fit) and under ``robots`` each robot's trajectory metrics against its own ground truth, its
 drops, skipped inputs and learned noise; ``map.png`` (every robot's track).
@@ -135,8 +135,10 @@ def feed_fleet(fleet, inputs: FleetInputs, settings) -> tuple[list[_Track], list
 
 
 def run_fleet(inputs: FleetInputs, config: SlamConfig, settings, initial: list, output: Path, plot: bool = True,
-              match_gate: float = DEFAULT_MATCH_GATE, align: bool = False, extra: dict | None = None) -> dict:
-    """Run FleetSlam on the fleet's inputs; write DIR/landmarks.csv, <robot>/trajectory.csv, metrics.json [, map.png]."""
+              match_gate: float = DEFAULT_MATCH_GATE, align: bool = False, extra: dict | None = None,
+              param_values: dict | None = None) -> dict:
+    """Run FleetSlam on the fleet's inputs; write DIR/landmarks.csv, <robot>/trajectory.csv and noise.yaml,
+    metrics.json [, map.png].  ``param_values``: the parameter file's values, the base of each noise.yaml."""
     from ..core import FleetSlam
 
     output.mkdir(parents=True, exist_ok=True)
@@ -166,6 +168,8 @@ def run_fleet(inputs: FleetInputs, config: SlamConfig, settings, initial: list, 
         robot_dir = output / name
         robot_dir.mkdir(exist_ok=True)
         report.write_trajectory(robot_dir / "trajectory.csv", result.trajectory)
+        report.write_noise_params(robot_dir / "noise.yaml", fleet.robot(r).learned_noise_parameters(),
+                                  param_values or {}, per_robot[name]["noise_learned"])
         write_run_tum(robot_dir, result.trajectory, (config.sensor.offset_x, config.sensor.offset_y),
                       robot_inputs.gps_times, robot_inputs.gps_xy)
     durations = [d for track in tracks for d in track.durations]
@@ -214,7 +218,7 @@ def cmd_run_fleet(args, config: SlamConfig, settings, file_values: dict, extra: 
         raise ValueError(f"{args.bag}: no inputs on the robots' configured topics")
     initial = fleet_initial_poses(args.initial_pose, inputs, config, settings, file_values)
     metrics = run_fleet(inputs, config, settings, initial, Path(args.output), plot=not args.no_plot,
-                        match_gate=args.match_gate, align=args.align, extra=extra)
+                        match_gate=args.match_gate, align=args.align, extra=extra, param_values=file_values)
     print(fleet_summary(metrics))
     print(f"wrote {args.output}/landmarks.csv, metrics.json, <robot>/trajectory.csv"
           + ("" if args.no_plot else ", map.png"))

@@ -1,0 +1,132 @@
+"""The GTSAM batch optimum over every robot of a fleet bag, known ids: the fleet run's reference.
+
+    python -m online_em_slam.offline.fleet_batch BAG --params FILE [--params FILE ...] --output DIR
+                                                 [--noise-from FLEET_RUN_DIR]
+
+Each robot's inputs are read and released as for a fleet run (:mod:`.fleet_runner`: its namespace,
+its input path) and collected into the single-robot batch problem
+(:func:`.batch.collect_problem`: the estimator's motion bookkeeping, its scans, its noise), with
+that robot's configuration: the parameter files, and with ``--noise-from`` the noise that robot
+learned in a fleet run (``FLEET_RUN_DIR/robotK/noise.yaml``, as the MRCLAM benchmark's ``(L)``
+batch uses a single run's).  The problems are put end to end, one chain of pose variables per
+robot (a prior at its ground-truth start, no motion factor between robots), sharing the landmark
+variables, and solved as one (:func:`.batch.solve_problem`, iSAM2 initial guess, then
+Levenberg-Marquardt).  DIR gets ``landmarks.csv`` (id, x, y), ``robotK/trajectory.csv`` and
+``metrics.json``: the joint map scored as a fleet run's and each robot's trajectory RMSE.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from . import report
+from .batch import InputsProblem, collect_problem, released_events, solve_problem
+from .evaluation import DEFAULT_MATCH_GATE, sensor_points, trajectory_metrics
+from .fleet_runner import FleetInputs, fleet_initial_poses, read_fleet_inputs
+
+
+def end_to_end(problems: list[InputsProblem]) -> InputsProblem:
+    """The robots' problems as one: pose variables in robot order, one chain each (a placeholder
+    motion into each later robot's first pose, never used: no between factor into a chain start)."""
+    sizes = [len(p.stamps) for p in problems]
+    if not all(sizes):
+        raise ValueError("a robot of the fleet has no pose variable (no motion input before its scans)")
+    offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)
+    increments, covariances = [problems[0].increments], [problems[0].motion_covariances]
+    for p in problems[1:]:
+        increments += [np.zeros((1, 3)), p.increments]
+        covariances += [np.eye(3)[None], p.motion_covariances]
+    skipped = sum((p.skipped for p in problems), Counter())
+    return InputsProblem(np.concatenate([p.stamps for p in problems]), np.concatenate(increments),
+                         np.concatenate(covariances),
+                         np.concatenate([p.obs_pose + o for p, o in zip(problems, offsets)]),
+                         np.concatenate([p.obs_id for p in problems]), np.concatenate([p.obs_y for p in problems]),
+                         np.concatenate([p.obs_R for p in problems]), skipped, tuple(int(o) for o in offsets))
+
+
+def robot_configs(params: list[str], names: list[str], noise_from: str | None) -> tuple[list, object, dict]:
+    """(config per robot, settings, the files' values): the parameter files, then the robot's learned noise."""
+    from ..parameters.yaml_file import config_from_params, load_params
+    values: dict = {}
+    for path in params:
+        values.update(load_params(path))
+    config, settings = config_from_params(values)
+    configs = []
+    for name in names:
+        noise = Path(noise_from) / name / "noise.yaml" if noise_from else None
+        if noise is not None and not noise.is_file():
+            raise FileNotFoundError(f"{noise}: no learned noise of {name} (run --fleet writes it)")
+        configs.append(config if noise is None else config_from_params({**values, **load_params(noise)})[0])
+    return configs, settings, values
+
+
+def fleet_batch(inputs: FleetInputs, configs: list, settings, initial_poses, max_iterations: int = 100):
+    """(InputsBatchResult over all robots, the robots' pose variable ranges)."""
+    problems = [collect_problem(released_events(robot), cfg, settings.motion_source)
+                for robot, cfg in zip(inputs.robots, configs)]
+    problem = end_to_end(problems)
+    result = solve_problem(problem, configs[0], initial_poses, max_iterations, init="incremental")
+    ends = list(problem.chain_starts[1:]) + [len(problem.stamps)]
+    return result, [slice(a, b) for a, b in zip(problem.chain_starts, ends)]
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m online_em_slam.offline.fleet_batch",
+                                     description="GTSAM batch optimum over every robot of a fleet bag (known ids).")
+    parser.add_argument("bag")
+    parser.add_argument("--params", required=True, action="append")
+    parser.add_argument("--output", required=True)
+    parser.add_argument("--noise-from", default=None, help="a run --fleet output: each robot's learned noise")
+    parser.add_argument("--match-gate", type=float, default=DEFAULT_MATCH_GATE)
+    args = parser.parse_args(argv)
+    try:
+        return _run(args)
+    except (FileNotFoundError, ValueError) as error:
+        print(f"fleet_batch: error: {error}", file=sys.stderr)
+        return 1
+
+
+def _run(args) -> int:
+    started = time.perf_counter()
+    _, settings, _ = robot_configs(args.params, [], None)
+    inputs = read_fleet_inputs(args.bag, settings)
+    configs, settings, values = robot_configs(args.params, inputs.names, args.noise_from)
+    initial = fleet_initial_poses("ground_truth", inputs, configs[0], settings, values)
+    result, chains = fleet_batch(inputs, configs, settings, [p.pose for p in initial])
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    np.savetxt(out / "landmarks.csv", np.column_stack([result.landmark_ids, result.landmarks]),
+               fmt=["%d", "%.6f", "%.6f"], delimiter=",", header="id,x,y", comments="")
+    offset = (configs[0].sensor.offset_x, configs[0].sensor.offset_y)
+    robots = {}
+    for name, robot, chain in zip(inputs.names, inputs.robots, chains):
+        trajectory = np.column_stack([result.stamps[chain], result.poses[chain]])
+        (out / name).mkdir(exist_ok=True)
+        report.write_trajectory(out / name / "trajectory.csv", trajectory)
+        points = sensor_points(result.poses[chain], offset)
+        robots[name] = {"trajectory": trajectory_metrics(result.stamps[chain], points, robot.gps_times,
+                                                         robot.gps_xy).to_dict()}
+    lm = report.scored_landmarks(result.landmarks, result.landmark_ids, inputs.robots[0], args.match_gate, by_id=True)
+    metrics = {"method": "batch_fleet", "bag": inputs.path, "params": " + ".join(args.params),
+               "noise": f"learned ({args.noise_from})" if args.noise_from else "params",
+               "robots_in_fleet": inputs.names, "n_landmarks": int(len(result.landmark_ids)),
+               "landmarks": lm.to_dict(), "robots": robots,
+               "batch": {"iterations": result.iterations, "initial_error": result.initial_error,
+                         "final_error": result.final_error, "n_observations": result.n_observations,
+                         "skipped": {k: int(v) for k, v in result.skipped.items()}},
+               "timing": {"wall_time_s": time.perf_counter() - started, "solve_time_s": result.solve_time}}
+    report.json_dump(out / "metrics.json", metrics)
+    d = metrics["landmarks"]
+    print(f"batch_fleet ({len(robots)} robots, {metrics['noise']} noise): joint map {d['n_matched']}/{d['n_true']} "
+          f"within the gate, {d['n_spurious']} spurious, shape {d['shape_error']:.3f} m; "
+          + "; ".join(f"{n} trajectory RMSE {r['trajectory']['rmse']:.3f} m" for n, r in robots.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
