@@ -261,30 +261,43 @@ def report_lines(run: MrclamRun) -> list[str]:
     return lines
 
 
-def run_cli(args) -> int:
-    """``online-em-slam-convert mrclam ...`` (arguments parsed by datasets.convert.main); 0 or 1 (one error line)."""
-    def fail(message: str) -> int:
-        print(f"online-em-slam-convert: error: {message}", file=sys.stderr)
-        return 1
+def fail(message: str) -> int:
+    """One error line of ``online-em-slam-convert``; exit status 1."""
+    print(f"online-em-slam-convert: error: {message}", file=sys.stderr)
+    return 1
 
-    if args.robot is None:
-        return fail("mrclam needs --robot K (1-5) or --all-robots")
+
+def convert_cli(args, convert, width: int = 28) -> int:
+    """The MRCLAM conversions' command line after their own checks: ``convert()`` loads and writes,
+    returning (messages per topic, report lines); prints them and the total; 0 or 1 (one error line)."""
     if args.data_dir is None:
         return fail("mrclam needs --data-dir (the MRCLAM_DatasetN directory or its .tar.xz)")
     if args.no_map_to_gps:
         return fail("--no-map-to-gps is for the KTH datasets (an MRCLAM bag has no map -> gps transform)")
     t0 = time.monotonic()
     try:
-        run = load_mrclam(args.data_dir, args.robot, args.seconds)
-        counts = write_mrclam_bag(run, args.output, args.storage, args.overwrite, args.unknown_ids,
-                                  progress=not args.no_progress)
+        counts, lines = convert()
     except (FileNotFoundError, FileExistsError, ValueError) as exc:
         return fail(str(exc))
     elapsed = time.monotonic() - t0
     for topic, n in counts.items():
-        print(f"{topic:28s} {n:8d}")
-    for line in report_lines(run):
+        print(f"{topic:{width}s} {n:8d}")
+    for line in lines:
         print(line)
     print(f"wrote {sum(counts.values())} messages to {args.output} "
           f"({dir_size(Path(args.output)) / 1e6:.1f} MB, {args.storage}) in {elapsed:.1f} s")
     return 0
+
+
+def run_cli(args) -> int:
+    """``online-em-slam-convert mrclam ...`` (arguments parsed by datasets.convert.main); 0 or 1 (one error line)."""
+    if args.robot is None:
+        return fail("mrclam needs --robot K (1-5) or --all-robots")
+
+    def convert():
+        run = load_mrclam(args.data_dir, args.robot, args.seconds)
+        counts = write_mrclam_bag(run, args.output, args.storage, args.overwrite, args.unknown_ids,
+                                  progress=not args.no_progress)
+        return counts, report_lines(run)
+
+    return convert_cli(args, convert)

@@ -26,15 +26,14 @@ correction the robots that find any agree on (the most common when they differ).
 from __future__ import annotations
 
 import heapq
-import sys
-import time
 from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
 from ...bag.bagio import clear_bag_directory, jazzy_typestore, write_topics
-from ..kth.convert import TOPIC_GT_LANDMARKS, TOPIC_TF_STATIC, dir_size
-from .convert import MSGTYPES, TOPIC_PRIORITY, MrclamStreams, iter_messages, mrclam_streams, report_lines
+from ..kth.convert import TOPIC_GT_LANDMARKS, TOPIC_TF_STATIC
+from .convert import (MSGTYPES, TOPIC_PRIORITY, MrclamStreams, convert_cli, fail, iter_messages, mrclam_streams,
+                      report_lines)
 from .dataset import ROBOTS, MrclamRun, load_mrclam
 
 #: Topics written once for the fleet (not per robot).
@@ -136,28 +135,13 @@ def fleet_report_lines(runs: list[MrclamRun]) -> list[str]:
 
 def run_fleet_cli(args) -> int:
     """``online-em-slam-convert mrclam OUT --all-robots ...``; 0 or 1 (one error line)."""
-    def fail(message: str) -> int:
-        print(f"online-em-slam-convert: error: {message}", file=sys.stderr)
-        return 1
-
     if args.robot is not None:
         return fail("--all-robots and --robot exclude each other")
-    if args.data_dir is None:
-        return fail("mrclam needs --data-dir (the MRCLAM_DatasetN directory or its .tar.xz)")
-    if args.no_map_to_gps:
-        return fail("--no-map-to-gps is for the KTH datasets (an MRCLAM bag has no map -> gps transform)")
-    t0 = time.monotonic()
-    try:
+
+    def convert():
         runs = load_fleet(args.data_dir, args.seconds)
         counts = write_fleet_bag(runs, args.output, args.storage, args.overwrite, args.unknown_ids,
                                  progress=not args.no_progress)
-    except (FileNotFoundError, FileExistsError, ValueError) as exc:
-        return fail(str(exc))
-    elapsed = time.monotonic() - t0
-    for topic, n in counts.items():
-        print(f"{topic:36s} {n:8d}")
-    for line in fleet_report_lines(runs):
-        print(line)
-    print(f"wrote {sum(counts.values())} messages to {args.output} "
-          f"({dir_size(Path(args.output)) / 1e6:.1f} MB, {args.storage}) in {elapsed:.1f} s")
-    return 0
+        return counts, fleet_report_lines(runs)
+
+    return convert_cli(args, convert, width=36)
