@@ -43,7 +43,8 @@ def test_fleet_bag_namespaces_every_robot_and_writes_the_survey_once(two_robots,
     ids = [list(decode_message(m)["id"]) for _, _, m in _read(out, ["/robot2/landmark_observations"])]
     assert ids == [list(decode_message(m)["id"]) for _, _, m in _read(single, ["/landmark_observations"])]
     lines = fleet_report_lines(runs)
-    assert lines[-1].startswith("robot-to-robot barcode reads ignored") and "robot 1 1, robot 2 1 (total 2)" in lines[-1]
+    assert lines[-1].startswith("robot-to-robot barcode reads ignored")
+    assert "robot 1 1, robot 2 1 (total 2)" in lines[-1]
 
 
 def test_cli_all_robots_errors(two_robots, tmp_path, capsys):

@@ -13,8 +13,9 @@ feeder decisions, ``filter.minimum_travel_*`` on its own travel) into
 at its first input (``--initial-pose auto`` or ``ground_truth``, as a single run from an
 MRCLAM bag) and draws from ``filter.seed + r``.
 
-Outputs in DIR: ``landmarks.csv`` (the joint map, as a single run's), ``<robotK>/trajectory.csv``
-(and TUM files) and ``<robotK>/noise.yaml`` (the noise it learned, as a single run's) per robot, ``metrics.json``: the joint map scored as a single run's map
+Outputs in DIR: ``landmarks.csv`` (the joint map, as a single run's), per robot
+``<robotK>/trajectory.csv`` (and TUM files) and ``<robotK>/noise.yaml`` (the noise it learned,
+as a single run's), ``metrics.json``: the joint map scored as a single run's map
 (:func:`..report.evaluate`: by id with known ids, within the match gate, shape after the rigid
 fit) and under ``robots`` each robot's trajectory metrics against its own ground truth, its
 drops, skipped inputs and learned noise; ``map.png`` (every robot's track).
