@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import re
 from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING, Any
 
@@ -131,6 +132,12 @@ NODE_SPECS = (
     ParamSpec("initial_pose.x", 0.0, "Initial pose x in the map frame (m).", -1e7, 1e7),
     ParamSpec("initial_pose.y", 0.0, "Initial pose y in the map frame (m).", -1e7, 1e7),
     ParamSpec("initial_pose.yaw", 0.0, "Initial pose yaw in the map frame (rad).", -math.pi, math.pi),
+    ParamSpec("robots", [], "Fleet mode: the robots' namespaces (robot1, robot2, ...); each robot's inputs are "
+              "<robot>/<odom_topic|control_topic|observations_topic>, its outputs <robot>/pose, <robot>/path, "
+              "<robot>/particles and map -> <robot>/<odom_frame>; one map for all. Empty: one robot, the "
+              "node's own topics.", read_only=True),
+    ParamSpec("initial_poses", [], "Fleet mode: x, y, yaw of each robot in the map frame, robot after robot "
+              "(3 per robot, as initial_pose.*). Empty: every robot starts at initial_pose.*.", read_only=True),
     ParamSpec("warn_throttle_period", 5.0, "Minimum period (s) between repeated warnings of one kind.",
               0.0, 3600.0, read_only=True),
     ParamSpec("marker_sigma", 2.0, "Covariance ellipses of ~/landmark_markers are drawn at this many "
@@ -168,6 +175,8 @@ class NodeSettings:
     map_directory: str = ""
     load_map_on_start: bool = False
     initial_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    robots: tuple[str, ...] = ()
+    initial_poses: tuple[float, ...] = ()
     warn_throttle_period: float = 5.0
     marker_sigma: float = 2.0
 
@@ -249,6 +258,7 @@ def descriptor(spec: ParamSpec) -> ParameterDescriptor:
         d.type = ParameterType.PARAMETER_STRING
     elif isinstance(value, list):
         strings = bool(value) and isinstance(value[0], str)          # noise_learning.learn
+        d.dynamic_typing = not value       # an empty default has no element type (robots): build() checks it
         d.type = ParameterType.PARAMETER_STRING_ARRAY if strings else ParameterType.PARAMETER_DOUBLE_ARRAY
     return d
 
@@ -366,7 +376,30 @@ def _node_settings(merged: dict[str, Any]) -> NodeSettings:
     if len({settings.map_frame, settings.odom_frame, settings.base_frame}) < 3:
         raise ParameterError(f"map_frame, odom_frame and base_frame must differ (got {settings.map_frame!r}, "
                              f"{settings.odom_frame!r}, {settings.base_frame!r})")
+    _check_fleet(settings)
     return settings
+
+
+_ROBOT_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+def _check_fleet(settings: NodeSettings) -> None:
+    """robots: distinct relative ROS names; initial_poses: empty or 3 finite numbers per robot."""
+    robots, poses = settings.robots, settings.initial_poses
+    for name in robots:
+        if not isinstance(name, str) or not _ROBOT_NAME.match(name):
+            raise ParameterError(f"robots: {name!r} is not a relative ROS name (letters, digits, _ and /, "
+                                 "not starting with a digit)")
+    if len(set(robots)) < len(robots):
+        raise ParameterError(f"robots: a name appears twice in {list(robots)}")
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in poses):
+        raise ParameterError(f"initial_poses: expected numbers, got {list(poses)!r}")
+    if poses and len(poses) != 3 * len(robots):
+        raise ParameterError(f"initial_poses: expected 3 numbers (x, y, yaw) per robot, {3 * len(robots)} "
+                             f"for robots {list(robots)}, got {len(poses)}")
+    for k, value in enumerate(poses):
+        limit = math.pi if k % 3 == 2 else 1e7
+        _check_range(f"initial_poses[{k}]", value, -limit, limit)
 
 
 def _core_config(merged: dict[str, Any], settings: NodeSettings) -> SlamConfig:
@@ -425,4 +458,8 @@ def build(values: dict[str, Any]) -> tuple[SlamConfig, NodeSettings]:
         if spec.choices and isinstance(spec.default, str):      # lists of names: by SlamConfig.validate
             _check_choice(spec.name, merged[spec.name], spec.choices)
     settings = _node_settings(merged)
-    return _core_config(merged, settings), settings
+    config = _core_config(merged, settings)
+    if settings.robots and config.em.m_step != "observed":
+        raise ParameterError("em.m_step must be observed with robots (fleet mode): the complete-data M-step "
+                             "keeps statistics smoothed over one robot's particles")
+    return config, settings

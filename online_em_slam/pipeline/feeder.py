@@ -19,7 +19,6 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass
-from typing import Callable
 
 from .inputs import CONTROL, ODOMETRY, Input
 from .rollback import Rollback
@@ -36,14 +35,18 @@ class Fed:
     error: Exception | None = None   # the input raised: dropped, the estimator as before it
 
 
-class Feeder:
-    """``rollback``: makes the estimator's :class:`~.rollback.Rollback` (a fleet robot's undoes
-    the whole fleet: pipeline/fleet.py)."""
+def rollback_of(estimator):
+    """The estimator's own rollback where it has one (a fleet robot's undoes the whole fleet, whose
+    map it shares: pipeline/fleet.py), else a :class:`~.rollback.Rollback` of it."""
+    make_rollback = getattr(estimator, "make_rollback", None)
+    return make_rollback() if callable(make_rollback) else Rollback(estimator)
 
-    def __init__(self, estimator, motion_source: str, drops: Counter | None = None,
-                 rollback: Callable[[object], Rollback] = Rollback) -> None:
+
+class Feeder:
+    """Applies one input at a time to ``estimator`` through its rollback (:func:`rollback_of`)."""
+
+    def __init__(self, estimator, motion_source: str, drops: Counter | None = None) -> None:
         self.estimator = estimator
-        self.make_rollback = rollback
         self.motion_kind = ODOMETRY if motion_source == "odom" else CONTROL
         self.drops = drops if drops is not None else Counter()
         self.reset(estimator)
@@ -51,7 +54,7 @@ class Feeder:
     def reset(self, estimator) -> None:
         """Feed ``estimator`` from now on; call after any change made to it outside :meth:`apply`."""
         self.estimator = estimator
-        self.rollback = self.make_rollback(estimator)
+        self.rollback = rollback_of(estimator)
         self.motion_seen = False
         self.last_point_stamp: float | None = None
         self.travel = MinimumTravel.from_config(getattr(estimator, "config", None))

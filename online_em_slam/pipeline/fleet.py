@@ -8,8 +8,9 @@ feeder's decisions: empty clouds, scans before the first motion input, and
 other back.  The feeder sees robot r as a single-robot estimator (:class:`RobotView`).
 A failing input is undone on the whole fleet (the map is shared): one
 :class:`~.rollback.Rollback` of the fleet, which every robot's feeder calls through
-(:class:`RobotRollback`), so a restore replays every robot's inputs since the copy, in
-the order they were applied.
+(:class:`RobotRollback`, from :meth:`RobotView.make_rollback`), so a restore replays every
+robot's inputs since the copy, in the order they were applied.  The node's fleet mode
+(ros/fleet_*.py) feeds its robots' pipelines through the same views.
 """
 from __future__ import annotations
 
@@ -25,18 +26,29 @@ FleetApplied = Callable[[int, Input, Fed], None]
 
 
 class RobotView:
-    """Robot ``robot`` of ``fleet`` with the single-robot estimator's interface (what the feeder calls)."""
+    """Robot ``robot`` of ``fleet`` with the single-robot estimator's interface, for the feeder
+    and the node: inputs and the pose go through the fleet, :meth:`make_rollback` gives the
+    fleet's shared rollback (``shared``), and what is not defined here (``particles``,
+    ``last_stamp``, ``restart_time_line``, ``drops`` ...) is the robot's filter's, looked up
+    at each use (a rollback replaces the filter objects)."""
 
-    def __init__(self, fleet, robot: int) -> None:
+    def __init__(self, fleet, robot: int, shared: Rollback | None = None) -> None:
         self.fleet, self.robot = fleet, int(robot)
+        self.shared = shared if shared is not None else Rollback(fleet)
 
     @property
     def config(self):
         return self.fleet.config
 
-    @property
-    def drops(self) -> Counter:
-        return self.fleet.robot(self.robot).drops
+    def filter(self):
+        """The robot's own filter (core/fleet/robot.py)."""
+        return self.fleet.robot(self.robot)
+
+    def make_rollback(self) -> "RobotRollback":
+        """The feeder's rollback (feeder.rollback_of): the fleet's, checkpointed now (the fleet may
+        have been changed from outside, a restarted time line)."""
+        self.shared.checkpoint()
+        return RobotRollback(self.shared, self.robot)
 
     def add_control(self, stamp: float, control) -> bool:
         return self.fleet.add_control(self.robot, stamp, control)
@@ -52,6 +64,17 @@ class RobotView:
 
     def landmarks(self, confirmed_only: bool = False):
         return self.fleet.landmarks(confirmed_only)
+
+    def __getattr__(self, name: str):
+        if name.startswith("__") or name in ("fleet", "robot", "shared"):
+            raise AttributeError(name)
+        return getattr(self.fleet.robot(self.robot), name)
+
+
+def robot_views(fleet) -> list[RobotView]:
+    """One view per robot of ``fleet``, sharing one rollback of it."""
+    shared = Rollback(fleet)
+    return [RobotView(fleet, robot, shared) for robot in range(fleet.n_robots)]
 
 
 class RobotRollback:
@@ -78,13 +101,11 @@ class FleetPipeline:
     def __init__(self, fleet, motion_source: str, input_delay: float, jump_threshold: float, *,
                  restart_on_jump_back: bool = False, on_applied: FleetApplied | None = None) -> None:
         self.fleet = fleet
-        self.rollback = Rollback(fleet)
         self.pipelines = [
-            InputPipeline(RobotView(fleet, r), motion_source, input_delay, jump_threshold,
+            InputPipeline(view, motion_source, input_delay, jump_threshold,
                           restart_on_jump_back=restart_on_jump_back,
-                          on_applied=None if on_applied is None else self._callback(on_applied, r),
-                          rollback=lambda _view, r=r: RobotRollback(self.rollback, r))
-            for r in range(fleet.n_robots)]
+                          on_applied=None if on_applied is None else self._callback(on_applied, r))
+            for r, view in enumerate(robot_views(fleet))]
 
     @staticmethod
     def _callback(on_applied: FleetApplied, robot: int):

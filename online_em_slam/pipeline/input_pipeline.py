@@ -24,7 +24,6 @@ from .feeder import Fed, Feeder
 from .input_path import InputPath
 from .inputs import CONTROL, OBSERVATIONS, ODOMETRY, Input
 from .load import LoadMonitor
-from .rollback import Rollback
 from .stamp_guard import Verdict
 
 Applied = Callable[[Input, Fed], None]
@@ -42,19 +41,17 @@ class InputPipeline:
 
     ``shedding``: skip observation updates while the load is above the limit
     (best-effort inputs that would otherwise overflow; never for lossless
-    inputs).  ``clock``: wall time for the load (seconds, monotonic).  ``rollback``: the
-    feeder's rollback factory (default: :class:`~.rollback.Rollback` of the estimator).
+    inputs).  ``clock``: wall time for the load (seconds, monotonic).
     """
 
     def __init__(self, estimator, motion_source: str, input_delay: float, jump_threshold: float, *,
                  restart_on_jump_back: bool = True, shedding: bool = False,
                  on_applied: Applied | None = None, on_settled: Settled | None = None,
-                 on_jump: Jumped | None = None, clock: Callable[[], float] = time.monotonic,
-                 rollback: Callable[[object], Rollback] = Rollback) -> None:
+                 on_jump: Jumped | None = None, clock: Callable[[], float] = time.monotonic) -> None:
         self.motion_kind = merged_streams(motion_source)[0]
         self.path = InputPath(merged_streams(motion_source), input_delay, jump_threshold,
                               restart_on_jump_back=restart_on_jump_back)
-        self.feeder = Feeder(estimator, motion_source, self.path.drops, rollback)
+        self.feeder = Feeder(estimator, motion_source, self.path.drops)
         self.load = LoadMonitor()
         self.max_load = 0.0
         self.shedding = shedding

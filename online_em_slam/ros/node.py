@@ -35,6 +35,7 @@ import sys
 import threading
 from collections import Counter
 from contextlib import contextmanager
+from dataclasses import replace
 
 import rclpy
 from rcl_interfaces.msg import SetParametersResult
@@ -53,6 +54,9 @@ from ..core.filter.slam import OnlineEMSlam
 from ..messages.tf2_build.first_use import ensure as ensure_tf2_msgs
 from . import conversions as conv
 from .diagnostics import Diagnostics
+from .fleet_estimate import FleetEstimate
+from .fleet_inputs import FleetInputs
+from .fleet_names import initial_poses
 from .inputs import Inputs
 from .outputs import Outputs
 from ..parameters.specs import (ParameterError, all_specs, as_declared_type, build, check_names, current_values,
@@ -95,8 +99,9 @@ class OnlineEmSlamNode(LifecycleNode):
         s = self.settings
         self.get_logger().info(
             f"online EM SLAM: motion_source={s.motion_source} (model {self.config.motion.model}), "
-            f"{self.config.filter.num_particles} particles, EM {self.config.em.algorithm}; "
-            f"map -> odom via {self.outputs.transform.kind}" + ("" if s.publish_tf else " (publish_tf is false)")
+            f"{self.config.filter.num_particles} particles, EM {self.config.em.algorithm}"
+            + (f"; fleet of {len(s.robots)} robots: {', '.join(s.robots)}" if self.fleet_mode else "")
+            + f"; map -> odom via {self.transform_kind}" + ("" if s.publish_tf else " (publish_tf is false)")
             + f"; sensor pose from {'TF, else ' if self.inputs.frames.uses_tf else ''}sensor.offset_*")
         return TransitionCallbackReturn.SUCCESS
 
@@ -192,20 +197,42 @@ class OnlineEmSlamNode(LifecycleNode):
     def _make_estimator(self) -> None:
         """The estimator and the state the parts share (lock, drop counters, pause)."""
         self.lock = threading.RLock()
-        self._slam = OnlineEMSlam(self.config, initial_pose=self.settings.initial_pose)
+        self._slam = self._new_estimator()
         self._pending_config = None
         self.drops: Counter = Counter()             # node-level drops by reason
         self._core_drops_carry: Counter = Counter()  # drops of estimators replaced at a reset
         self.paused = False
 
+    def _new_estimator(self):
+        """OnlineEMSlam; with ``robots`` (fleet mode) the FleetSlam of every robot, one map."""
+        s = self.settings
+        if s.robots:
+            return FleetEstimate(self.config, initial_poses(s), s.robots)
+        return OnlineEMSlam(self.config, initial_pose=s.initial_pose)
+
+    @property
+    def transform_kind(self) -> str:
+        """Through which channel map -> odom goes (fleet mode: each robot's, alike)."""
+        outputs = self.inputs.robots[0].outputs if self.fleet_mode else self.outputs
+        return outputs.transform.kind
+
+    @property
+    def fleet_mode(self) -> bool:
+        return isinstance(self._slam, FleetEstimate)
+
     def _make_outputs(self) -> None:
-        """/diagnostics, then the publishers and map -> odom (they count updates into the diagnostics)."""
+        """/diagnostics, then the publishers and map -> odom (they count updates into the diagnostics);
+        in fleet mode only the map's (each robot's are made with its inputs)."""
         self.diagnostics = Diagnostics(self)
-        self.outputs = Outputs(self, self.diagnostics)
+        self.outputs = Outputs(self, self.diagnostics, robot_outputs=not self.fleet_mode)
 
     def _make_inputs(self) -> None:
-        """The input pipeline, which calls the outputs back (its subscriptions at activate)."""
-        self.inputs = Inputs(self, self.outputs, self.diagnostics)
+        """The input pipeline, which calls the outputs back (its subscriptions at activate); in fleet
+        mode one per robot with the robot's outputs (fleet_inputs.py)."""
+        if self.fleet_mode:
+            self.inputs = FleetInputs(self, self.diagnostics)
+        else:
+            self.inputs = Inputs(self, self.outputs, self.diagnostics)
 
     def _make_services(self) -> None:
         """Services and /initialpose (``commands``: rclpy's Node already has a ``services`` property)."""
@@ -218,12 +245,13 @@ class OnlineEmSlamNode(LifecycleNode):
         # Timers run on the steady clock: they rate-limit work, independent of sim time.
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._housekeeping_timer = self.create_timer(0.1, self.inputs.housekeeping, clock=self._steady)
-        self._map_timer = self.create_timer(s.map_publish_period, self.outputs.publish_map, clock=self._steady)
+        publish_map = self.inputs.publish_map if self.fleet_mode else self.outputs.publish_map
+        self._map_timer = self.create_timer(s.map_publish_period, publish_map, clock=self._steady)
         self._diag_timer = self.create_timer(s.diagnostics_period, self.diagnostics.publish, clock=self._steady)
         self._tf_timer = None
         if s.transform_publish_period > 0:
-            self._tf_timer = self.create_timer(s.transform_publish_period, self.outputs.republish_transform,
-                                               clock=self._steady)
+            republish = self.inputs.republish_transform if self.fleet_mode else self.outputs.republish_transform
+            self._tf_timer = self.create_timer(s.transform_publish_period, republish, clock=self._steady)
         # Reset on a backward jump of the ROS clock (bag played in a loop).
         self._jump_handle = self.get_clock().create_jump_callback(
             JumpThreshold(min_forward=None, min_backward=Duration(seconds=-s.time_jump_threshold),
@@ -268,6 +296,9 @@ class OnlineEmSlamNode(LifecycleNode):
         ``keep_map`` (a time jump, not asked by the user): only the pose and the time line restart."""
         with self.lock:
             s = self.settings
+            if self.fleet_mode:
+                self._reset_fleet(reason, keep_inputs, keep_map)
+                return
             if keep_map:                 # as robot_localization and AMCL, the state survives a time jump
                 self._slam.restart_time_line(s.initial_pose)
             elif self._pending_config is not None:
@@ -281,6 +312,21 @@ class OnlineEmSlamNode(LifecycleNode):
             self.outputs.reset()
             self.diagnostics.count_reset()
             self.get_logger().warning(f"estimate reset: {reason}" + ("; the map is kept" if keep_map else ""))
+
+    def _reset_fleet(self, reason: str, keep_inputs: bool, keep_map: bool) -> None:
+        """Fleet mode: a time jump restarts every robot's pose and time line; else a new fleet."""
+        if keep_map:
+            for io in self.inputs.robots:
+                io.view.reset(reason, keep_inputs=keep_inputs, keep_map=True)
+            return
+        self._core_drops_carry.update(self._slam.drops)
+        if self._pending_config is not None:
+            self.config, self._pending_config = self._pending_config, None
+        self._slam = self._new_estimator()
+        self.inputs.restart(self._slam)
+        self.outputs.reset()
+        self.diagnostics.count_reset()
+        self.get_logger().warning(f"estimate reset: {reason}")
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, parameters) -> SetParametersResult:
@@ -300,6 +346,8 @@ class OnlineEmSlamNode(LifecycleNode):
             return
         with self.lock:
             self.outputs.path.resize(settings.path_max_length, settings.path_publish_max_poses)
+            if self.fleet_mode:
+                config = replace(config, noise_learning=replace(config.noise_learning, replay_warmup=False))
             self.settings = settings
             self.inputs.apply_settings(settings)
             if config != self._slam.config:

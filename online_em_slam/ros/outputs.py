@@ -36,7 +36,9 @@ from .transform_sender import TransformSender
 class Outputs:
     """Publishers, map -> odom and the state they are computed from (``node``: OnlineEmSlamNode)."""
 
-    def __init__(self, node, diagnostics) -> None:
+    def __init__(self, node, diagnostics, robot_outputs: bool = True, map_outputs: bool = True) -> None:
+        """``robot_outputs``: ~/pose, ~/path, ~/particles and map -> odom; ``map_outputs``: ~/landmarks
+        and ~/landmark_markers (fleet mode: each robot's Outputs has the first, the node's the second)."""
         self.node = node
         self.diagnostics = diagnostics
         s = node.settings
@@ -48,12 +50,17 @@ class Outputs:
         self.last_tf_ns = -1
         self.path = PathHistory(s.path_max_length, s.path_publish_max_poses)
         self.map_dirty = True
-        self.pose_pub = node.create_publisher(PoseWithCovarianceStamped, "~/pose", latched_qos())
-        self.path_pub = node.create_publisher(Path, "~/path", latched_qos())
-        self.particles_pub = node.create_publisher(PoseArray, "~/particles", QoSProfile(depth=5))
-        self.landmarks_pub = node.create_publisher(PointCloud2, "~/landmarks", latched_qos())
-        self.markers_pub = node.create_publisher(MarkerArray, "~/landmark_markers", latched_qos())
-        self.transform = TransformSender(node)
+        self.pose_pub = self.path_pub = self.particles_pub = self.landmarks_pub = self.markers_pub = None
+        self.transform = None
+        if robot_outputs:
+            self.pose_pub = node.create_publisher(PoseWithCovarianceStamped, "~/pose", latched_qos())
+            self.path_pub = node.create_publisher(Path, "~/path", latched_qos())
+            self.particles_pub = node.create_publisher(PoseArray, "~/particles", QoSProfile(depth=5))
+        if map_outputs:
+            self.landmarks_pub = node.create_publisher(PointCloud2, "~/landmarks", latched_qos())
+            self.markers_pub = node.create_publisher(MarkerArray, "~/landmark_markers", latched_qos())
+        if robot_outputs:
+            self.transform = TransformSender(node)
 
     def reset(self) -> None:
         """Forget the estimate-derived state (an estimate reset)."""
@@ -184,7 +191,7 @@ class Outputs:
     # ------------------------------------------------------------------ map -> odom
     def send_transform(self, data_stamp: float | None) -> None:
         s = self.node.settings
-        if not s.publish_tf or self.map_to_odom is None:
+        if not s.publish_tf or self.map_to_odom is None or self.transform is None:
             return
         base = max(data_stamp if data_stamp is not None else 0.0, self.node.now_sec())
         stamp_ns = int(round((base + s.transform_timeout) * 1e9))
@@ -223,11 +230,12 @@ class Outputs:
             self.map_dirty = False
             s = node.settings
             header = node.header(node.slam.last_stamp, s.map_frame)
-            landmarks = node.slam.landmarks(confirmed_only=True)     # the map: tentative rows are candidates
-            cloud, skipped = conv.landmarks_to_cloud(header, landmarks)
-            for reason, count in skipped.items():
-                node.drops[reason] += count
-            self.landmarks_pub.publish(cloud)
-            self.markers_pub.publish(conv.landmarks_to_markers(header, landmarks, s.marker_sigma))
-            if s.path_max_length > 0:
+            if self.landmarks_pub is not None:
+                landmarks = node.slam.landmarks(confirmed_only=True)  # the map: tentative rows are candidates
+                cloud, skipped = conv.landmarks_to_cloud(header, landmarks)
+                for reason, count in skipped.items():
+                    node.drops[reason] += count
+                self.landmarks_pub.publish(cloud)
+                self.markers_pub.publish(conv.landmarks_to_markers(header, landmarks, s.marker_sigma))
+            if s.path_max_length > 0 and self.path_pub is not None:
                 self.path_pub.publish(self.path.to_msg(header))    # at most path_publish_max_poses

@@ -20,8 +20,9 @@ class Commands:
         self.node = node
         # RViz's "2D Pose Estimate" and AMCL users publish here: `initialpose` in the node's
         # namespace, as AMCL (/initialpose without one, /robot1/initialpose under robot1).
-        self.initial_pose_sub = node.create_subscription(PoseWithCovarianceStamped, "initialpose",
-                                                         self.on_initial_pose, QoSProfile(depth=1))
+        # Fleet mode: the robots' poses come from initial_poses (no initialpose per robot yet).
+        self.initial_pose_sub = None if node.fleet_mode else node.create_subscription(
+            PoseWithCovarianceStamped, "initialpose", self.on_initial_pose, QoSProfile(depth=1))
         node.create_service(Trigger, "~/reset", self.reset)
         node.create_service(SetBool, "~/pause", self.pause)
 

@@ -1,0 +1,57 @@
+"""The fleet's estimate as the node's ``slam`` in fleet mode (diagnostics, services, the map timer).
+
+The node-level parts that read ``node.slam`` (the map publisher, /diagnostics, the
+map-file services) see the fleet through :class:`FleetEstimate`: the one map, the
+newest stamp of any robot, the drops of every robot's filter under
+``<robot>.<reason>``.  Each robot's own pose, particles and inputs go through its
+:class:`~online_em_slam.pipeline.fleet.RobotView` (fleet_robot.py).
+"""
+from __future__ import annotations
+
+from collections import Counter
+
+from ..core.fleet.slam import FleetSlam
+from ..pipeline.fleet import robot_views
+
+
+class FleetEstimate:
+    """``fleet`` (FleetSlam) and its robots' feeds; ``robots``: the robots' names, in order."""
+
+    def __init__(self, config, initial_poses, robots: tuple[str, ...]) -> None:
+        self.fleet = FleetSlam(config, initial_poses)
+        self.robots = tuple(robots)
+        self.feeds = robot_views(self.fleet)
+
+    @property
+    def config(self):
+        return self.fleet.config
+
+    @property
+    def last_stamp(self) -> float | None:
+        """The newest stamp any robot's filter has reached."""
+        stamps = [self.fleet.robot(r).last_stamp for r in range(self.fleet.n_robots)]
+        stamps = [s for s in stamps if s is not None]
+        return max(stamps) if stamps else None
+
+    @property
+    def drops(self) -> Counter:
+        out: Counter = Counter()
+        for r, name in enumerate(self.robots):
+            out.update({f"{name}.{reason}": n for reason, n in self.fleet.robot(r).drops.items() if n})
+        return out
+
+    def landmarks(self, confirmed_only: bool = False):
+        return self.fleet.landmarks(confirmed_only)
+
+    def learned_noise(self) -> dict:
+        """The first robot's learned noise (each robot learns its own)."""
+        return self.fleet.robot(0).learned_noise()
+
+    def save_map(self, path: str) -> None:
+        raise NotImplementedError("map files are not available in fleet mode yet")
+
+    def load_map(self, path: str, restore_pose: bool = True) -> None:
+        raise NotImplementedError("map files are not available in fleet mode yet")
+
+    def set_pose(self, pose, std=None) -> None:
+        raise NotImplementedError("fleet mode: set a robot's pose with initial_poses")
