@@ -1,11 +1,11 @@
-"""Fleet robots as pipeline estimators (pipeline/fleet_feed.py): one robot's failing input
+"""Fleet robots as pipeline estimators (pipeline/fleet.py, the views the node feeds): one robot's failing input
 puts the whole fleet back, so the shared map is as if that input had never come."""
 import numpy as np
 
 from online_em_slam.core.fleet.slam import FleetSlam
 from online_em_slam.experiments.simulation import ScenarioConfig, fleet_scenarios, slam_config_for
 from online_em_slam.pipeline.feeder import Feeder
-from online_em_slam.pipeline.fleet_feed import robot_feeds
+from online_em_slam.pipeline.fleet import robot_views
 from online_em_slam.pipeline.inputs import CONTROL, OBSERVATIONS, Input
 
 
@@ -13,7 +13,7 @@ def _run(fail_at=None):
     scenarios = fleet_scenarios(ScenarioConfig(n_steps=40, seed=0), 2)
     fleet = FleetSlam(slam_config_for(scenarios[0], num_particles=20, seed=0), [s.initial_pose for s in scenarios],
                       0.0)
-    feeds = robot_feeds(fleet)
+    feeds = robot_views(fleet)
     feeders = [Feeder(feed, "control") for feed in feeds]
     for k in range(40):
         for r, scenario in enumerate(scenarios):
