@@ -83,6 +83,21 @@ def test_unknown_ids_are_associated_against_the_shared_map():
     assert np.all(distance.min(axis=0) < 1.5)
 
 
+def test_the_joint_map_is_saved_as_a_map_file_a_single_robot_loads(tmp_path):
+    scenarios = fleet_scenarios(ScenarioConfig(n_steps=150, seed=1), 2)
+    config = slam_config_for(scenarios[0], num_particles=30, seed=0)
+    fleet = _run_fleet(scenarios, config)
+    fleet.save_map(tmp_path / "joint.npz")
+    single = OnlineEMSlam(config, initial_pose=scenarios[0].initial_pose, stamp=0.0)
+    single.load_map(tmp_path / "joint.npz")
+    saved, loaded = fleet.landmarks(), single.landmarks()
+    np.testing.assert_array_equal(np.sort(loaded.ids), np.sort(saved.ids))
+    order = np.argsort(saved.ids), np.argsort(loaded.ids)
+    np.testing.assert_allclose(loaded.positions[order[1]], saved.positions[order[0]])
+    with np.load(tmp_path / "joint.npz") as arrays:                 # robot 0's pose, where a reload starts
+        np.testing.assert_allclose(arrays["pose"], fleet.pose(0).mean)
+
+
 def _scan(landmark_id, range_, bearing=0.0):
     return Observations(np.array([range_]), np.array([bearing]), np.array([landmark_id]))
 

@@ -48,10 +48,11 @@ class FleetEstimate:
         return self.fleet.robot(0).learned_noise()
 
     def save_map(self, path: str) -> None:
-        raise NotImplementedError("map files are not available in fleet mode yet")
+        """The joint map as a single robot's map file (FleetSlam.save_map)."""
+        self.fleet.save_map(path)
 
     def load_map(self, path: str, restore_pose: bool = True) -> None:
-        raise NotImplementedError("map files are not available in fleet mode yet")
+        raise NotImplementedError("loading a map file is not available in fleet mode yet")
 
     def set_pose(self, pose, std=None) -> None:
         raise NotImplementedError("fleet mode: set a robot's pose with initial_poses")

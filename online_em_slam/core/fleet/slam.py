@@ -111,6 +111,12 @@ class FleetSlam:
     def particles(self, robot: int) -> tuple[np.ndarray, np.ndarray]:
         return self.robot(robot).particles()
 
+    def save_map(self, path: str) -> None:
+        """Write the joint map as a single robot's map file (OnlineEMSlam.save_map): the map, its
+        information and counts, with robot 0's pose and learned noise, so a single robot or
+        the node loads it.  Loading a file into a fleet is not supported yet."""
+        self._robots[0].save_map(path)
+
     def landmarks(self, confirmed_only: bool = False) -> LandmarkMap:
         """The fleet's map theta with covariances and observation counts (every robot's)."""
         return self._robots[0].landmarks(confirmed_only)
