@@ -113,3 +113,24 @@ def test_two_robots_one_map(ros):
     drops, decided = split_decisions({k.partition(".")[2]: v for k, v in node.all_drops().items()})
     assert not drops, node.all_drops()               # counted per robot: robot1.<reason>
     assert all(k.startswith(ROBOTS) for k in node.all_drops())
+
+
+def test_each_robot_takes_initialpose_in_its_namespace(ros):
+    """RViz's "2D Pose Estimate" per robot, as AMCL under a robot namespace: /robot2/initialpose
+    moves robot 2 only; there is no node-level /initialpose in fleet mode."""
+    params = {"robots": list(ROBOTS), "initial_poses": [0.0] * 6}
+    node = ros.node = OnlineEmSlamNode(context=ros.context, parameter_overrides=[Parameter(k, value=v)
+                                                                                 for k, v in params.items()])
+    ros.executor.add_node(node)
+    topics = {s.topic_name for s in node.subscriptions}
+    assert {"/robot1/initialpose", "/robot2/initialpose"} <= topics and "/initialpose" not in topics
+    pub = ros.tester.create_publisher(PoseWithCovarianceStamped, "/robot2/initialpose", 1)
+    msg = PoseWithCovarianceStamped(header=Header(frame_id="map"))
+    msg.pose.pose = conv.pose_msg(3.0, 4.0, 0.5)
+    msg.pose.covariance[0] = msg.pose.covariance[7] = 0.01
+    msg.pose.covariance[35] = 0.001
+    fleet = node.slam.fleet
+    assert ros.spin_until(lambda: (pub.publish(msg) or True) and np.hypot(*(fleet.pose(1).mean[:2] - [3.0, 4.0]))
+                          < 0.5, 5.0), fleet.pose(1).mean
+    assert abs(fleet.pose(1).mean[2] - 0.5) < 0.2
+    assert np.allclose(fleet.pose(0).mean, 0.0)

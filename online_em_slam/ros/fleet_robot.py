@@ -12,9 +12,13 @@ from __future__ import annotations
 
 from collections import Counter
 
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from rclpy.qos import QoSProfile
+
 from .fleet_names import RobotNames
 from .inputs import Inputs
 from .outputs import Outputs
+from .services import set_pose_from
 
 
 class RobotView:
@@ -57,6 +61,10 @@ class FleetRobotIO:
         self.view = RobotView(node, index, names, feed, initial_pose)
         self.outputs = self.view.outputs = Outputs(self.view, diagnostics, map_outputs=False)
         self.inputs = self.view.inputs = Inputs(self.view, self.outputs, diagnostics)
+        # RViz's "2D Pose Estimate" for this robot, as AMCL under a robot namespace: <robot>/initialpose.
+        self.initial_pose_sub = node.create_subscription(
+            PoseWithCovarianceStamped, names.topic("initialpose"), lambda msg: set_pose_from(self.view, msg),
+            QoSProfile(depth=1))
 
     @property
     def name(self) -> str:
