@@ -98,6 +98,17 @@ def test_multi_robot_launch_starts_two_namespaced_nodes():
     assert '"online_em_slam.launch.py"' in text and "GroupAction(scoped=True" in text
 
 
+def test_fleet_launch_starts_one_node_with_the_robots_and_a_fleet_rviz():
+    """Issue 25 item 5: one node with the robots parameter; RViz with every robot's displays."""
+    text = (ROOT / "launch" / "fleet.launch.py").read_text()
+    tree = ast.parse(text)
+    assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description" for n in tree.body)
+    for needle in ('"online_em_slam_node"', '"robots"', '"rviz2"', "fleet_config", '"params_file"'):
+        assert needle in text, needle
+    assert _used_arguments(tree) <= _declared_arguments(tree)
+    assert {"robots", "params_file", "rviz", "use_sim_time"} <= _declared_arguments(tree)
+
+
 def test_setup_installs_launch_rviz_config_and_console_tools():
     from setuptools import distutils          # setuptools' bundled distutils, before distutils.core
     assert distutils is not None
@@ -110,7 +121,8 @@ def test_setup_installs_launch_rviz_config_and_console_tools():
         os.chdir(cwd)
     files = {target: set(sources) for target, sources in dist.data_files}
     assert "rviz/online_em_slam.rviz" in files["share/online_em_slam/rviz"]
-    assert {"launch/online_em_slam.launch.py", "launch/multi_robot.launch.py"} <= files["share/online_em_slam/launch"]
+    assert {"launch/online_em_slam.launch.py", "launch/multi_robot.launch.py",
+            "launch/fleet.launch.py"} <= files["share/online_em_slam/launch"]
     scripts = {s.split("=")[0].strip() for s in dist.entry_points["console_scripts"]}
     assert {"online-em-slam-record", "online-em-slam-topic", "online-em-slam", "online-em-slam-replay",
             "online-em-slam-convert", "online-em-slam-demo"} <= scripts

@@ -87,3 +87,23 @@ def test_the_config_of_a_namespace_names_the_topics_of_a_node_in_it(ros):
     assert {f"/robot1{t}" for t in NODE_TOPICS} <= names
     if node.outputs.transform.kind.startswith("tf2"):
         assert "/robot1/tf" in names and "/tf" not in names
+
+
+def test_a_fleet_config_shows_every_robot_and_the_map_once():
+    """Issue 25 item 5: one RViz for a fleet node: each robot's pose, path, particles, observations
+    and "2D Pose Estimate" tool under its namespace, the one map and the shared topics once."""
+    text = RVIZ.read_text()
+    fleet = rviz_config.fleet_config(text, ["robot1", "robot2"])
+    shown = topics(fleet)
+    for robot in ("robot1", "robot2"):
+        assert {f"/{robot}/pose", f"/{robot}/path", f"/{robot}/particles", f"/{robot}/landmark_observations",
+                f"/{robot}/initialpose"} <= shown
+    assert {"/online_em_slam/landmarks", "/online_em_slam/landmark_markers", "/ground_truth/landmarks"} <= shown
+    assert not {"/online_em_slam/pose", "/initialpose", "/landmark_observations"} & shown
+    displays = yaml.safe_load(fleet)["Visualization Manager"]["Displays"]
+    names = [d["Name"] for d in displays]
+    assert len(names) == len(set(names)) and names.count("Landmarks (estimate)") == 1
+    under = topics(rviz_config.fleet_config(text, ["robot1"], namespace="site"))
+    assert {"/site/robot1/pose", "/site/online_em_slam/landmarks", "/ground_truth/landmarks"} <= under
+    with pytest.raises(ValueError):
+        rviz_config.fleet_config(text, [])

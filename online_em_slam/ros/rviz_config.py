@@ -13,7 +13,10 @@ launch (``rviz:=true namespace:=robot1``); by hand::
     rviz2 -d robot1.rviz --ros-args -r __ns:=/robot1 -r /tf:=tf -r /tf_static:=tf_static
 
 (the remaps only when each robot has its TF tree in its namespace, as in
-``launch/multi_robot.launch.py``).  No rclpy import: usable from a launch file.
+``launch/multi_robot.launch.py``).  For one node of a fleet (``robots`` parameter),
+:func:`fleet_config` shows every robot's pose, path, particles and observations and the
+one map (``--robots robot1 robot2``; ``launch/fleet.launch.py``).  No rclpy import:
+usable from a launch file.
 """
 from __future__ import annotations
 
@@ -75,6 +78,48 @@ def namespaced_config(text: str, namespace: str, fixed_frame: str = "") -> str:
     return yaml.safe_dump(config, sort_keys=False, default_flow_style=False)
 
 
+# The single node's per-robot topics and where a fleet node publishes or reads them for robot r.
+FLEET_ROBOT_TOPICS = {"/online_em_slam/pose": "pose", "/online_em_slam/path": "path",
+                      "/online_em_slam/particles": "particles", "/landmark_observations": "landmark_observations",
+                      "/scan": "scan", "/initialpose": "initialpose"}
+
+
+def fleet_config(text: str, robots, namespace: str = "", fixed_frame: str = "") -> str:
+    """The RViz config ``text`` for a fleet node (``robots`` its namespaces, docs/NODE.md "Fleet
+    mode"): every display and tool of a robot topic once per robot, named after it and reading
+    ``/<robot>/pose`` ... (``<robot>/initialpose`` for the "2D Pose Estimate" tool); the map
+    and the shared topics once; the node's ``namespace`` in front of every robot and node topic."""
+    robots = [normalise_namespace(r) for r in robots]
+    if not robots or not all(robots):
+        raise ValueError("fleet_config needs at least one robot namespace")
+    config = yaml.safe_load(text)
+    if not isinstance(config, dict) or "Visualization Manager" not in config:
+        raise ValueError("not an RViz configuration (no 'Visualization Manager')")
+    manager = config["Visualization Manager"]
+    for key in ("Displays", "Tools"):
+        manager[key] = [copy for item in manager.get(key, []) for copy in _per_robot(item, robots)]
+    _rewrite(config, normalise_namespace(namespace))
+    if fixed_frame.strip():
+        manager.setdefault("Global Options", {})["Fixed Frame"] = fixed_frame.strip()
+    return yaml.safe_dump(config, sort_keys=False, default_flow_style=False)
+
+
+def _per_robot(item: dict, robots: list[str]) -> list[dict]:
+    """``item`` itself, or one copy per robot when it shows a robot topic."""
+    topic = item.get("Topic") if isinstance(item, dict) else None
+    value = topic.get("Value") if isinstance(topic, dict) else None
+    if value not in FLEET_ROBOT_TOPICS:
+        return [item]
+    copies = []
+    for robot in robots:
+        copy = yaml.safe_load(yaml.safe_dump(item))
+        copy["Topic"]["Value"] = f"{robot}/{FLEET_ROBOT_TOPICS[value]}"
+        if "Name" in copy:
+            copy["Name"] = f"{copy['Name']} {robot.lstrip('/')}"
+        copies.append(copy)
+    return copies
+
+
 def write_namespaced_config(path: str, namespace: str, fixed_frame: str = "") -> str:
     """``path`` itself when nothing changes, else a generated copy in the temporary directory."""
     if not normalise_namespace(namespace) and not fixed_frame.strip():
@@ -111,11 +156,17 @@ def main(argv=None) -> int:
     parser.add_argument("config", nargs="?", default=None, help="RViz config (default: the package's)")
     parser.add_argument("--namespace", default="", help="the node's namespace, e.g. robot1")
     parser.add_argument("--fixed-frame", default="", help="RViz fixed frame (default: the config's)")
+    parser.add_argument("--robots", nargs="+", default=None,
+                        help="a fleet node's robots (its robots parameter): their displays once each")
     args = parser.parse_args(argv)
     try:
         path = args.config or default_config()
         with open(path, encoding="utf-8") as handle:
-            sys.stdout.write(namespaced_config(handle.read(), args.namespace, args.fixed_frame))
+            text = handle.read()
+        if args.robots:
+            sys.stdout.write(fleet_config(text, args.robots, args.namespace, args.fixed_frame))
+        else:
+            sys.stdout.write(namespaced_config(text, args.namespace, args.fixed_frame))
     except (OSError, ValueError, yaml.YAMLError) as error:
         print(f"rviz_config: error: {error}", file=sys.stderr)
         return 1
