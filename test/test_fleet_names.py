@@ -46,3 +46,18 @@ def test_single_robot_by_default():
 def test_fleet_parameters_are_checked(values, message):
     with pytest.raises(ParameterError, match=message.replace("[", r"\[").replace("]", r"\]")):
         build(values)
+
+
+def test_diagnostics_carry_each_robots_ess_stamp_and_learned_noise():
+    from online_em_slam.core import Observations
+    from online_em_slam.core.config import SlamConfig
+    from online_em_slam.ros.fleet_estimate import FleetEstimate
+    from dataclasses import replace
+    config = SlamConfig()
+    config = replace(config, noise_learning=replace(config.noise_learning, enabled=True))
+    estimate = FleetEstimate(config, np.zeros((2, 3)), ("robot1", "robot2"))
+    estimate.fleet.add_observations(1, 0.5, Observations(np.array([5.0]), np.array([0.1]), np.array([3])))
+    values = estimate.robot_diagnostics()
+    assert values["robot1.last_stamp"] == -1.0 and values["robot2.last_stamp"] == 0.5
+    assert values["robot1.ess"] == values["robot2.ess"] == SlamConfig().filter.num_particles
+    assert "robot2.noise_learned.sigma_range" in values

@@ -43,6 +43,19 @@ class FleetEstimate:
     def landmarks(self, confirmed_only: bool = False):
         return self.fleet.landmarks(confirmed_only)
 
+    def robot_diagnostics(self) -> dict:
+        """Per robot, under ``<robot>.``: its ESS, last stamp and learned noise (/diagnostics)."""
+        values = {}
+        for r, name in enumerate(self.robots):
+            robot = self.fleet.robot(r)
+            values[f"{name}.ess"] = float(robot.effective_sample_size)
+            values[f"{name}.last_stamp"] = robot.last_stamp if robot.last_stamp is not None else -1.0
+            learned = robot.learned_noise()
+            if learned["enabled"]:
+                values.update({f"{name}.noise_learned.{k}": v for k, v in learned.items()
+                               if k not in ("enabled", "learning")})
+        return values
+
     def learned_noise(self) -> dict:
         """The first robot's learned noise (each robot learns its own)."""
         return self.fleet.robot(0).learned_noise()
