@@ -200,3 +200,23 @@ def test_real_dataset1_two_robots_fleet_batch_60_s(tmp_path, capsys):
     for robot in ("robot1", "robot2"):
         assert metrics["robots"][robot]["trajectory"]["rmse"] < 0.5
         assert (out / robot / "trajectory.csv").is_file()
+
+
+@pytest.mark.skipif(not REAL_DATASET1.is_file(), reason=f"{REAL_DATASET1} not present")
+def test_real_dataset1_two_robots_compare_fleet_60_s(tmp_path, capsys):
+    """compare --fleet: the fleet run and the five-robot batch with the files' and the learned noise."""
+    pytest.importorskip("gtsam")
+    from online_em_slam.offline.cli import main
+    bag = tmp_path / "bag"
+    write_fleet_bag(load_fleet(REAL_DATASET1, 60.0, robots=(1, 2)), bag, progress=False)
+    out = tmp_path / "compare"
+    assert main(["compare", str(bag), "--fleet", "--params", str(PARAMS), "--output", str(out), "--seed", "0",
+                 "--particles", "50", "--no-plot"]) == 0
+    rows = json.loads((out / "comparison.json").read_text())["methods"]
+    assert [r["method"] for r in rows] == ["online_em_fleet", "batch_fleet_params", "batch_fleet_learned"]
+    for row in rows:
+        assert row["n_true"] == 15 and row["within_gate"] >= 10 and row["shape"] < 0.5
+        assert set(row["trajectory_rmse"]) == {"robot1", "robot2"}
+    assert (out / "batch_fleet_learned" / "metrics.json").is_file()
+    assert "learned" in json.loads((out / "batch_fleet_learned" / "metrics.json").read_text())["noise"]
+    assert "| online_em_fleet |" in (out / "comparison.md").read_text()

@@ -4,7 +4,7 @@
                        [--fleet]
                        [--seed S] [--particles N] [--initial-pose auto|ground_truth|gps|params|X,Y,YAW]
                        [--match-gate M] [--align] [--no-plot]
-    online-em-slam compare BAG --params FILE --output DIR [--methods ...] [--seed S] ...
+    online-em-slam compare BAG --params FILE --output DIR [--methods ...] [--fleet] [--seed S] ...
 
 ``run`` reads the bag (rosbags, no rclpy) and feeds the estimator through the
 node's own input path (:mod:`online_em_slam.offline.runner`, with
@@ -140,6 +140,10 @@ def cmd_run(args) -> int:
 
 
 def cmd_compare(args) -> int:
+    if args.fleet:
+        from .fleet_compare import cmd_compare_fleet
+        config, settings, file_values = read_parameters(args)
+        return cmd_compare_fleet(args, config, settings, file_values, {"params": _params_label(args)})
     config, _, file_values, inputs, initial = prepare(args)
     output = Path(args.output)
     output.mkdir(parents=True, exist_ok=True)
@@ -190,6 +194,9 @@ def build_parser() -> argparse.ArgumentParser:
     compare = sub.add_parser("compare", help="run several methods on a bag and tabulate them")
     common(compare)
     compare.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+    compare.add_argument("--fleet", action="store_true",
+                         help="a fleet bag: online EM's fleet run and the GTSAM batch over every robot "
+                              "(file and learned noise) (online_em_slam.offline.fleet_compare)")
     compare.set_defaults(func=cmd_compare)
     from .evaluate_recording import add_parser as add_evaluate     # recorded node runs
     add_evaluate(sub)

@@ -92,13 +92,21 @@ def main(argv=None) -> int:
 
 
 def _run(args) -> int:
-    started = time.perf_counter()
     _, settings, _ = robot_configs(args.params, [], None)
     inputs = read_fleet_inputs(args.bag, settings)
-    configs, settings, values = robot_configs(args.params, inputs.names, args.noise_from)
+    metrics = solve_and_score(inputs, args.params, args.noise_from, Path(args.output), args.match_gate)
+    print(batch_summary(metrics))
+    return 0
+
+
+def solve_and_score(inputs: FleetInputs, params: list[str], noise_from: str | None, out: Path,
+                    match_gate: float) -> dict:
+    """The batch over the fleet's robots (each robot's learned noise from ``noise_from``, else the
+    files'), written to ``out`` (landmarks.csv, robotK/trajectory.csv, metrics.json); its metrics."""
+    started = time.perf_counter()
+    configs, settings, values = robot_configs(params, inputs.names, noise_from)
     initial = fleet_initial_poses("ground_truth", inputs, configs[0], settings, values)
     result, chains = fleet_batch(inputs, configs, settings, [p.pose for p in initial])
-    out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     np.savetxt(out / "landmarks.csv", np.column_stack([result.landmark_ids, result.landmarks]),
                fmt=["%d", "%.6f", "%.6f"], delimiter=",", header="id,x,y", comments="")
@@ -111,9 +119,9 @@ def _run(args) -> int:
         points = sensor_points(result.poses[chain], offset)
         robots[name] = {"trajectory": trajectory_metrics(result.stamps[chain], points, robot.gps_times,
                                                          robot.gps_xy).to_dict()}
-    lm = report.scored_landmarks(result.landmarks, result.landmark_ids, inputs.robots[0], args.match_gate, by_id=True)
-    metrics = {"method": "batch_fleet", "bag": inputs.path, "params": " + ".join(args.params),
-               "noise": f"learned ({args.noise_from})" if args.noise_from else "params",
+    lm = report.scored_landmarks(result.landmarks, result.landmark_ids, inputs.robots[0], match_gate, by_id=True)
+    metrics = {"method": "batch_fleet", "bag": inputs.path, "params": " + ".join(str(p) for p in params),
+               "noise": f"learned ({noise_from})" if noise_from else "params",
                "robots_in_fleet": inputs.names, "n_landmarks": int(len(result.landmark_ids)),
                "landmarks": lm.to_dict(), "robots": robots,
                "batch": {"iterations": result.iterations, "initial_error": result.initial_error,
@@ -121,11 +129,15 @@ def _run(args) -> int:
                          "skipped": {k: int(v) for k, v in result.skipped.items()}},
                "timing": {"wall_time_s": time.perf_counter() - started, "solve_time_s": result.solve_time}}
     report.json_dump(out / "metrics.json", metrics)
+    return metrics
+
+
+def batch_summary(metrics: dict) -> str:
     d = metrics["landmarks"]
-    print(f"batch_fleet ({len(robots)} robots, {metrics['noise']} noise): joint map {d['n_matched']}/{d['n_true']} "
-          f"within the gate, {d['n_spurious']} spurious, shape {d['shape_error']:.3f} m; "
-          + "; ".join(f"{n} trajectory RMSE {r['trajectory']['rmse']:.3f} m" for n, r in robots.items()))
-    return 0
+    robots = metrics["robots"]
+    return (f"batch_fleet ({len(robots)} robots, {metrics['noise']} noise): joint map {d['n_matched']}/{d['n_true']} "
+            f"within the gate, {d['n_spurious']} spurious, shape {d['shape_error']:.3f} m; "
+            + "; ".join(f"{n} trajectory RMSE {r['trajectory']['rmse']:.3f} m" for n, r in robots.items()))
 
 
 if __name__ == "__main__":
