@@ -15,6 +15,16 @@ from online_em_slam.messages.cloud import decode_message
 
 from test_mrclam import EXPECTED_COUNTS, REAL_DATASET1, _cli, _read, _write_dataset
 
+
+@pytest.fixture(scope="module")
+def d1_two_robots(tmp_path_factory):
+    """Dataset 1's robots 1 and 2, first 60 s, as one fleet bag (written once for the module)."""
+    if not REAL_DATASET1.is_file():
+        pytest.skip(f"{REAL_DATASET1} not present")
+    bag = tmp_path_factory.mktemp("d1_two_robots") / "bag"
+    write_fleet_bag(load_fleet(REAL_DATASET1, 60.0, robots=(1, 2)), bag, progress=False)
+    return bag
+
 PARAMS = Path(__file__).resolve().parents[1] / "config" / "mrclam.yaml"
 
 
@@ -102,11 +112,9 @@ def test_real_dataset1_all_robots_first_60_s(tmp_path, capsys):
             "robot 3 103, robot 4 55, robot 5 35 (total 329)") in text
 
 
-@pytest.mark.skipif(not REAL_DATASET1.is_file(), reason=f"{REAL_DATASET1} not present")
-def test_real_dataset1_two_robots_run_fleet_60_s(tmp_path, capsys):
+def test_real_dataset1_two_robots_run_fleet_60_s(d1_two_robots, tmp_path, capsys):
     from online_em_slam.offline.cli import main
-    bag = tmp_path / "bag"
-    write_fleet_bag(load_fleet(REAL_DATASET1, 60.0, robots=(1, 2)), bag, progress=False)
+    bag = d1_two_robots
     out = tmp_path / "out"
     assert main(["run", str(bag), "--fleet", "--params", str(PARAMS), "--output", str(out), "--seed", "0",
                  "--particles", "50", "--no-plot"]) == 0
@@ -187,12 +195,10 @@ def test_fleet_batch_puts_the_robots_problems_end_to_end():
     assert joint.skipped == Counter(a=2)
 
 
-@pytest.mark.skipif(not REAL_DATASET1.is_file(), reason=f"{REAL_DATASET1} not present")
-def test_real_dataset1_two_robots_fleet_batch_60_s(tmp_path, capsys):
+def test_real_dataset1_two_robots_fleet_batch_60_s(d1_two_robots, tmp_path, capsys):
     pytest.importorskip("gtsam")
     from online_em_slam.offline.fleet_batch import main
-    bag = tmp_path / "bag"
-    write_fleet_bag(load_fleet(REAL_DATASET1, 60.0, robots=(1, 2)), bag, progress=False)
+    bag = d1_two_robots
     out = tmp_path / "batch"
     assert main([str(bag), "--params", str(PARAMS), "--output", str(out)]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
@@ -202,13 +208,11 @@ def test_real_dataset1_two_robots_fleet_batch_60_s(tmp_path, capsys):
         assert (out / robot / "trajectory.csv").is_file()
 
 
-@pytest.mark.skipif(not REAL_DATASET1.is_file(), reason=f"{REAL_DATASET1} not present")
-def test_real_dataset1_two_robots_compare_fleet_60_s(tmp_path, capsys):
+def test_real_dataset1_two_robots_compare_fleet_60_s(d1_two_robots, tmp_path, capsys):
     """compare --fleet: the fleet run and the five-robot batch with the files' and the learned noise."""
     pytest.importorskip("gtsam")
     from online_em_slam.offline.cli import main
-    bag = tmp_path / "bag"
-    write_fleet_bag(load_fleet(REAL_DATASET1, 60.0, robots=(1, 2)), bag, progress=False)
+    bag = d1_two_robots
     out = tmp_path / "compare"
     assert main(["compare", str(bag), "--fleet", "--params", str(PARAMS), "--output", str(out), "--seed", "0",
                  "--particles", "50", "--no-plot"]) == 0
