@@ -27,7 +27,10 @@ stderr and exit status 1, before any publisher exists (:func:`check_bag`): not a
 bag, unreadable, no messages, a replayed topic whose published name the node reads
 with another message type (``/odom`` as std_msgs/String; leave it out with
 ``--exclude``) or a topic recorded with two types, and, unless ``--no-input-check``,
-no motion input (/odom, /control) or no /landmark_observations.  A bag that goes
+no motion input (/odom, /control) or no /landmark_observations.  A fleet bag
+(``online-em-slam-convert mrclam --all-robots``: ``/robot1/odom``, ...) passes when
+some robot namespace carries both (:func:`robot_namespaces`), and its namespaced
+inputs are type-checked as the root ones.  A bag that goes
 bad while playing (a corrupt chunk) ends the replay the same way, after the summary.
 """
 from __future__ import annotations
@@ -112,25 +115,40 @@ def check_bag(bag: Path, args) -> None:
         raise bag_error(bag, error) from None
     node = NodeSettings()
     expected = node_topic_types(node.odom_topic, node.control_topic, node.observations_topic)
+    counts = {}
+    for topic, _, n, _ in conns:
+        counts[topic] = counts.get(topic, 0) + n
+    motion = [absolute_topic(node.odom_topic), absolute_topic(node.control_topic)]
+    observations = absolute_topic(node.observations_topic)
+    namespaces = robot_namespaces(counts, motion, observations)
+    inputs = {topic: expected[topic] for topic in (*motion, observations)}
+    for ns in namespaces:             # a fleet bag: each robot's inputs have the node's types too
+        expected.update({ns + topic: msgtype for topic, msgtype in inputs.items()})
     problems = type_problems([(replay_options.remap(args, topic), msgtype) for topic, msgtype, _, chosen in conns
                               if chosen], expected)
     if problems:
         raise BagError(f"{bag}: {'; '.join(problems)} (leave such a topic out with --exclude)")
-    counts = {}
-    for topic, _, n, _ in conns:
-        counts[topic] = counts.get(topic, 0) + n
     if not sum(counts.values()):
         raise BagError(f"{bag}: the bag holds no messages")
-    if args.no_input_check:
+    if args.no_input_check or namespaces:
         return
-    motion = [absolute_topic(node.odom_topic), absolute_topic(node.control_topic)]
     if not any(counts.get(t) for t in motion):
         raise BagError(f"{bag}: no motion input for the node: no messages on {' or '.join(motion)} "
                        "(--no-input-check replays it anyway)")
-    observations = absolute_topic(node.observations_topic)
     if not counts.get(observations):
         raise BagError(f"{bag}: no observations for the node: no messages on {observations} "
                        "(--no-input-check replays it anyway)")
+
+
+def robot_namespaces(counts: dict, motion, observations: str) -> list[str]:
+    """The namespaces ``/NS`` of ``counts`` (topic -> messages) with messages on both ``/NS`` +
+    ``observations`` and ``/NS`` + one of ``motion`` (absolute names): the robots of a fleet bag."""
+    found = []
+    for topic, n in counts.items():
+        ns = topic[:-len(observations)]
+        if n and ns and topic.endswith(observations) and any(counts.get(ns + m) for m in motion):
+            found.append(ns)
+    return sorted(found)
 
 
 def _chosen(args, topic: str) -> bool:

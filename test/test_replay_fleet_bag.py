@@ -1,0 +1,66 @@
+"""online-em-slam-replay takes a fleet bag (``/robotK/odom``, ... as ``online-em-slam-convert
+mrclam --all-robots`` writes it; issue 25): the input check finds the robots' namespaces
+instead of refusing a bag without root /odom, /control, /landmark_observations, and checks
+the namespaced inputs' types as the root ones.  Fast: check_bag only, no ROS."""
+from __future__ import annotations
+
+from collections import Counter
+
+import pytest
+
+from bad_bag_corpus import BASE_TOPICS, _messages
+
+
+def write_fleet_bag(path, robots=("/robot1", "/robot2"), wrong: dict | None = None, topics=BASE_TOPICS):
+    """The small base bag's inputs once per robot namespace (``wrong``: root topic -> written as String)."""
+    from online_em_slam.bag.bagio import jazzy_typestore, write_topics
+
+    ts = jazzy_typestore()
+    base = _messages(ts, topics, wrong)
+    messages = sorted(((ns, robot + topic, msgtype, msg) for robot in robots for ns, topic, msgtype, msg in base),
+                      key=lambda e: (e[0], e[1]))
+    counts = Counter(topic for _, topic, _, _ in messages)
+    msgtypes = {}
+    for _, topic, msgtype, _ in messages:
+        msgtypes.setdefault(topic, msgtype)
+    write_topics(path, iter(messages), dict(counts), msgtypes, (), ts, progress=False)
+    return path
+
+
+def _check(bag, *argv):
+    from online_em_slam.bag import replay
+
+    replay.check_bag(bag, replay.build_parser().parse_args([str(bag), *argv]))
+
+
+def test_robot_namespaces_need_observations_and_a_motion_input():
+    from online_em_slam.bag.replay import robot_namespaces
+
+    motion, obs = ["/odom", "/control"], "/landmark_observations"
+    counts = {"/robot1/control": 5, "/robot1/landmark_observations": 2, "/robot2/odom": 3,
+              "/robot2/landmark_observations": 1, "/robot3/landmark_observations": 4,
+              "/robot4/control": 2, "/robot4/landmark_observations": 0, "/landmark_observations": 7, "/odom": 1}
+    assert robot_namespaces(counts, motion, obs) == ["/robot1", "/robot2"]
+    assert robot_namespaces({"/odom": 1, "/landmark_observations": 1}, motion, obs) == []
+
+
+def test_a_fleet_bag_passes_the_input_check(tmp_path):
+    _check(write_fleet_bag(tmp_path / "fleet"))
+    _check(write_fleet_bag(tmp_path / "fleet_odom", topics=("/odom", "/landmark_observations")),
+           "--topics", "/robot1/odom", "/robot1/landmark_observations")
+
+
+def test_a_fleet_bag_without_observations_is_still_refused(tmp_path):
+    from online_em_slam.bag.bagio import BagError
+
+    bag = write_fleet_bag(tmp_path / "fleet", topics=("/control", "/odom"))
+    with pytest.raises(BagError, match="no motion input for the node"):
+        _check(bag)
+
+
+def test_a_robot_input_of_the_wrong_type_is_refused(tmp_path):
+    from online_em_slam.bag.bagio import BagError
+
+    bag = write_fleet_bag(tmp_path / "fleet", wrong={"/odom": True})
+    with pytest.raises(BagError, match="/robot1/odom is std_msgs/msg/String, expected nav_msgs/msg/Odometry"):
+        _check(bag)
