@@ -78,6 +78,8 @@ def test_two_robots_one_map(ros):
                         step.ranges, step.bearings, step.ids))
                     published += 1
         assert ros.spin_until(lambda: node.inputs_received == published, 10.0), (node.inputs_received, published)
+    received = node.inputs.received()          # inputs.<robot> in /diagnostics
+    assert set(received) == set(ROBOTS) and sum(received.values()) == published and all(received.values())
 
     for r, scenario in zip(ROBOTS, scenarios):
         last = T0 + scenario.steps[lengths[r] - 1].stamp

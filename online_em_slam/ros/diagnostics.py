@@ -116,8 +116,9 @@ class Diagnostics:
             learned = slam.learned_noise()              # noise learned online (core/em/noise/)
             if learned["enabled"]:
                 values.update({f"noise_learned.{k}": v for k, v in learned.items() if k not in ("enabled", "learning")})
-            if node.fleet_mode:                         # each robot's ESS, stamp, learned noise
+            if node.fleet_mode:                         # each robot's ESS, stamp, learned noise, inputs
                 values.update(slam.robot_diagnostics())
+                values.update({f"inputs.{robot}": count for robot, count in inputs.received().items()})
             values.update({f"dropped.{reason}": count for reason, count in sorted(drops.items())})
             values.update({f"decided.{reason}": count for reason, count in sorted(decided.items())})
             values.update({f"corrected.{reason}": count for reason, count in sorted(inputs.corrected.items())})

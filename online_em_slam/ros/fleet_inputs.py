@@ -6,7 +6,8 @@ own stamp-ordered merge, so one robot's silence holds no other back, its
 publishers and map -> its odom) and answers the node, the services and
 /diagnostics for all of them: the input streams are watched together (one
 :class:`~.input_watch.InputWatch`), the queues and loads are summed, drops are
-reported per robot (``dropped.<robot>.<reason>``).
+reported per robot (``dropped.<robot>.<reason>``), and so are the inputs received
+(``inputs.<robot>``).
 """
 from __future__ import annotations
 
@@ -89,6 +90,10 @@ class FleetInputs:
     def _share_watch(self) -> None:
         for io in self.robots:
             io.inputs.watch = self.watch
+
+    def received(self) -> dict[str, int]:
+        """Each robot's well-formed inputs received (the node's ``inputs``, per robot)."""
+        return {io.name: io.diagnostics.inputs for io in self.robots}
 
     @property
     def corrected(self) -> Counter:

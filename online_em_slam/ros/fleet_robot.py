@@ -54,13 +54,32 @@ class RobotView:
             self._node.get_logger().warning(f"{self.names.robot}: estimate reset: {reason}; the map is kept")
 
 
+class RobotDiagnostics:
+    """The node's diagnostics as one robot's inputs and outputs use them: the robot's
+    well-formed inputs are also counted for it (``inputs.<robot>`` in /diagnostics)."""
+
+    def __init__(self, diagnostics) -> None:
+        self._diagnostics = diagnostics
+        self.inputs = 0
+
+    def count_input(self) -> None:
+        self.inputs += 1
+        self._diagnostics.count_input()
+
+    def __getattr__(self, name: str):
+        if name.startswith("__") or name == "_diagnostics":
+            raise AttributeError(name)
+        return getattr(self._diagnostics, name)
+
+
 class FleetRobotIO:
     """Robot ``index``'s view, outputs (pose, path, particles, map -> its odom) and inputs."""
 
     def __init__(self, node, index: int, names: RobotNames, feed, initial_pose, diagnostics) -> None:
         self.view = RobotView(node, index, names, feed, initial_pose)
-        self.outputs = self.view.outputs = Outputs(self.view, diagnostics, map_outputs=False)
-        self.inputs = self.view.inputs = Inputs(self.view, self.outputs, diagnostics)
+        self.diagnostics = RobotDiagnostics(diagnostics)
+        self.outputs = self.view.outputs = Outputs(self.view, self.diagnostics, map_outputs=False)
+        self.inputs = self.view.inputs = Inputs(self.view, self.outputs, self.diagnostics)
         # RViz's "2D Pose Estimate" for this robot, as AMCL under a robot namespace: <robot>/initialpose.
         self.initial_pose_sub = node.create_subscription(
             PoseWithCovarianceStamped, names.topic("initialpose"), lambda msg: set_pose_from(self.view, msg),
