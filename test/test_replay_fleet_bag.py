@@ -64,3 +64,42 @@ def test_a_robot_input_of_the_wrong_type_is_refused(tmp_path):
     bag = write_fleet_bag(tmp_path / "fleet", wrong={"/odom": True})
     with pytest.raises(BagError, match="/robot1/odom is std_msgs/msg/String, expected nav_msgs/msg/Odometry"):
         _check(bag)
+
+
+class _Refusing:
+    """A publisher whose middleware refuses the first ``n`` attempts (a full KEEP_ALL history)."""
+
+    def __init__(self, n, error="Failed to publish: cannot publish data, at /project/src/rmw_publish.cpp:116"):
+        self.n, self.error, self.sent = n, error, []
+
+    def publish(self, raw):
+        if self.n:
+            self.n -= 1
+            raise RuntimeError(self.error)
+        self.sent.append(raw)
+
+
+def test_a_refused_message_is_retried_not_lost():
+    from online_em_slam.bag.replay import publish_waiting
+
+    now = [0.0]
+
+    def sleep(s):
+        now[0] += s
+    pub = _Refusing(3)
+    waited, retries = publish_waiting(pub, b"m", timeout=5.0, sleep=sleep, clock=lambda: now[0])
+    assert pub.sent == [b"m"] and retries == 3 and waited > 0
+    assert publish_waiting(_Refusing(0), b"m", 5.0, sleep=sleep, clock=lambda: now[0]) == (0.0, 0)
+
+
+def test_a_subscriber_that_never_acknowledges_ends_the_replay_after_the_timeout():
+    from online_em_slam.bag.replay import PublishError, publish_waiting
+
+    now = [0.0]
+
+    def sleep(s):
+        now[0] += s
+    with pytest.raises(PublishError, match="--publish-timeout"):
+        publish_waiting(_Refusing(10 ** 6), b"m", timeout=1.0, sleep=sleep, clock=lambda: now[0])
+    with pytest.raises(RuntimeError, match="context is invalid"):      # other errors are not retried
+        publish_waiting(_Refusing(1, "publisher's context is invalid"), b"m", 1.0, sleep=sleep)

@@ -9,7 +9,10 @@ Raw CDR bytes from the bag (rosbags reader) are published unchanged through
 publishers created with the real rclpy message classes (type names resolved with
 importlib: 'sensor_msgs/msg/PointCloud2' -> sensor_msgs.msg.PointCloud2).  Timing
 follows the bag's log times scaled by ``--rate`` (``--rate 0``: as fast as
-possible).  QoS: RELIABLE + KEEP_ALL so that nothing is dropped by a matched
+possible); a message the middleware refuses (a reliable subscriber that does not keep
+up has filled the KEEP_ALL history) is retried for up to ``--publish-timeout`` s, so a
+slow subscriber holds the replay back (``publish_blocked_*`` in the summary) instead of
+losing messages.  QoS: RELIABLE + KEEP_ALL so that nothing is dropped by a matched
 reliable subscriber; topics recorded as TRANSIENT_LOCAL (/tf_static, latched
 ground truth) are offered TRANSIENT_LOCAL.  ``--clock`` publishes
 rosgraph_msgs/Clock on /clock with the log time before each message (``--clock
@@ -91,6 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--start-delay", type=float, default=0.0, help="seconds to sleep after discovery")
     p.add_argument("--ack-timeout", type=float, default=10.0,
                    help="at the end, seconds to wait until reliable subscribers acknowledged everything")
+    p.add_argument("--publish-timeout", type=float, default=60.0,
+                   help="seconds to keep retrying a message the middleware refuses (a reliable subscriber "
+                        "that does not keep up: the replay waits for it) before ending with an error")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.add_argument("--no-input-check", action="store_true",
                    help="replay a bag that lacks the node's motion or observation topic")
@@ -214,8 +220,35 @@ def _wait_for_subscribers(node, publishers, wait: dict, timeout: float, log) -> 
     return exit_code
 
 
-def _play(args, reader, conns, node, publishers, counts, log) -> float:
-    """Publish the raw messages paced by their log times (and /clock); the wall seconds taken."""
+class PublishError(RuntimeError):
+    """The middleware refused a message for longer than --publish-timeout."""
+
+
+def publish_waiting(publisher, raw: bytes, timeout: float, sleep=time.sleep, clock=time.monotonic) -> tuple[float, int]:
+    """Publish ``raw``; while the middleware refuses it, wait and try again, for up to ``timeout`` s.
+
+    A RELIABLE + KEEP_ALL writer whose history is full (a reliable subscriber that has not
+    acknowledged: a node slower than the replay) blocks in Fast DDS for its max_blocking_time and
+    then fails with "cannot publish data"; retrying lets the subscriber's pace hold the replay
+    back instead of ending it.  (seconds waited, retries); PublishError after ``timeout``."""
+    since, retries = clock(), 0
+    while True:
+        try:
+            publisher.publish(raw)
+            return (clock() - since if retries else 0.0), retries
+        except RuntimeError as error:       # rclpy's RCLError
+            if "cannot publish data" not in str(error):
+                raise
+            if clock() - since > timeout:
+                raise PublishError(f"a subscriber acknowledged nothing for {timeout:g} s "
+                                   f"(--publish-timeout): {error}") from None
+            retries += 1
+            sleep(0.005)
+
+
+def _play(args, reader, conns, node, publishers, counts, log, blocked: dict) -> float:
+    """Publish the raw messages paced by their log times (and /clock); the wall seconds taken.
+    ``blocked``: the seconds and messages the middleware held back (publish_waiting), updated."""
     clock_pub, Clock = None, None
     if args.clock:
         from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -237,7 +270,10 @@ def _play(args, reader, conns, node, publishers, counts, log) -> float:
             clock.clock.sec, clock.clock.nanosec = divmod(int(log_time), 1_000_000_000)
             clock_pub.publish(clock)
             last_clock = log_time
-        publishers[conn.topic].publish(bytes(raw))
+        waited, retries = publish_waiting(publishers[conn.topic], bytes(raw), args.publish_timeout)
+        if retries:
+            blocked["seconds"] += waited
+            blocked["messages"] += 1
         counts[conn.topic] += 1
         n += 1
         now = time.monotonic()
@@ -285,6 +321,7 @@ def _main(argv=None) -> int:
     rclpy.init(args=["online-em-slam-replay"])
     node = rclpy.create_node("bag_replay")
     counts, skipped, elapsed, acked, exit_code = {}, {}, None, False, 0
+    blocked = {"seconds": 0.0, "messages": 0}
     started = time.monotonic()
     try:
         with Reader(bag) as reader:
@@ -292,12 +329,12 @@ def _main(argv=None) -> int:
             exit_code = _wait_for_subscribers(node, publishers, wait, args.wait_timeout, log)
             if args.start_delay > 0:
                 time.sleep(args.start_delay)
-            elapsed = _play(args, reader, conns, node, publishers, counts, log)
+            elapsed = _play(args, reader, conns, node, publishers, counts, log, blocked)
             acked = _acknowledged(publishers, args.ack_timeout, log)
     except KeyboardInterrupt:
         exit_code = 130
         elapsed = time.monotonic() - started       # stopped: the wall time until then
-    except BagError as error:                 # the bag went bad while playing (truncated, corrupt)
+    except (BagError, PublishError) as error:     # the bag went bad while playing; a subscriber stopped
         print(f"online-em-slam-replay: error: {error}", file=sys.stderr)
         exit_code = 1
     finally:
@@ -307,6 +344,8 @@ def _main(argv=None) -> int:
         print(f"{topic:32s} {c:8d}")
     print(json.dumps({"published": counts, "total": sum(counts.values()), "skipped_topics": skipped,
                       "wall_seconds": None if elapsed is None else round(elapsed, 3), "acknowledged": acked,
+                      "publish_blocked_seconds": round(blocked["seconds"], 3),
+                      "publish_blocked_messages": blocked["messages"],
                       "interrupted": exit_code == 130}), flush=True)
     return exit_code
 
