@@ -100,7 +100,7 @@ def replay_and_watch(bag: Path, robots, rate: float, timeout: float, settle_time
         executor.add_node(node)
         cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", str(rate), "--clock",
                "--topics", *topics, "--wait-subscribers", *(f"{t}:1" for t in topics), "/clock:1",
-               "--wait-timeout", "120", "--start-delay", "2", "--ack-timeout", "120"]
+               "--wait-timeout", "120", "--start-delay", "2", "--ack-timeout", "900"]
         replay = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + timeout
         try:
@@ -197,6 +197,9 @@ def main(argv=None) -> int:
                         help="output directory of `online-em-slam run BAG --fleet` on the same bag and seed")
     parser.add_argument("--node-param", nargs="*", default=[], metavar="NAME:=VALUE",
                         help="more node parameters (e.g. publish_particles:=false)")
+    parser.add_argument("--timeout", type=float, default=2400.0,
+                        help="seconds past the bag's duration / rate before the replay is stopped (a node "
+                             "slower than the rate holds the reliable replay back)")
     parser.add_argument("--output", type=Path, default=Path("out/fleet_replay_check"), help="node logs")
     args = parser.parse_args(argv)
     os.environ.setdefault("ROS_DOMAIN_ID", "57")
@@ -214,7 +217,7 @@ def main(argv=None) -> int:
         with open(args.output / f"node_rate{rate:g}.log", "w") as log:
             node = start_node(args.params, robots, initial, args.seed, log, args.node_param)
             try:
-                seen = replay_and_watch(args.bag, robots, rate, timeout=duration / rate * 4 + 300,
+                seen = replay_and_watch(args.bag, robots, rate, timeout=duration / rate + args.timeout,
                                         settle_timeout=600.0, node_pid=node.pid, log_dir=args.output)
                 node_cpu = process_cpu_seconds(node.pid)
             finally:

@@ -330,7 +330,12 @@ def _main(argv=None) -> int:
             if args.start_delay > 0:
                 time.sleep(args.start_delay)
             elapsed = _play(args, reader, conns, node, publishers, counts, log, blocked)
-            acked = _acknowledged(publishers, args.ack_timeout, log)
+            try:
+                acked = _acknowledged(publishers, args.ack_timeout, log)
+            except RuntimeError:              # SIGINT while waiting: rclpy shut the context down
+                if rclpy.ok():
+                    raise
+                exit_code = 130
     except KeyboardInterrupt:
         exit_code = 130
         elapsed = time.monotonic() - started       # stopped: the wall time until then
