@@ -103,3 +103,26 @@ def test_a_subscriber_that_never_acknowledges_ends_the_replay_after_the_timeout(
         publish_waiting(_Refusing(10 ** 6), b"m", timeout=1.0, sleep=sleep, clock=lambda: now[0])
     with pytest.raises(RuntimeError, match="context is invalid"):      # other errors are not retried
         publish_waiting(_Refusing(1, "publisher's context is invalid"), b"m", 1.0, sleep=sleep)
+
+
+def test_sigint_while_waiting_for_acknowledgements_ends_with_the_summary(tmp_path, capsys, monkeypatch):
+    """rclpy's SIGINT handler shuts the context down while the replay waits for acknowledgements:
+    status 130 and the JSON summary, not a traceback (it was 'publisher's context is invalid')."""
+    pytest.importorskip("rclpy")
+    import json
+    import os
+
+    import rclpy
+
+    from online_em_slam.bag import replay
+
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(200 + os.getpid() % 30))
+
+    def interrupted(publishers, timeout, log):
+        rclpy.shutdown()
+        raise RuntimeError("failed to get subscription count: publisher's context is invalid")
+    monkeypatch.setattr(replay, "_acknowledged", interrupted)
+    code = replay.main([str(write_fleet_bag(tmp_path / "fleet")), "--rate", "0", "--quiet"])
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert code == 130 and summary["interrupted"] and summary["total"] > 0
