@@ -105,6 +105,7 @@ def test_a_subscriber_that_never_acknowledges_ends_the_replay_after_the_timeout(
         publish_waiting(_Refusing(1, "publisher's context is invalid"), b"m", 1.0, sleep=sleep)
 
 
+@pytest.mark.live        # a real rclpy context and DDS participant: with the live tests, not in a shared worker
 def test_sigint_while_waiting_for_acknowledgements_ends_with_the_summary(tmp_path, capsys, monkeypatch):
     """rclpy's SIGINT handler shuts the context down while the replay waits for acknowledgements:
     status 130 and the JSON summary, not a traceback (it was 'publisher's context is invalid')."""
