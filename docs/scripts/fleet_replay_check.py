@@ -36,6 +36,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 KINDS = ("control", "odom", "landmark_observations")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from input_path_figures import process_cpu_seconds, watch_map_and_diagnostics  # noqa: E402
 
 
 def fleet_setup(bag: Path, params: Path, seed: int):
@@ -60,25 +62,12 @@ def start_node(params: Path, robots, initial, seed: int, log, extra=()):
     return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
 
 
-def process_cpu_seconds(pid: int) -> float | None:
-    """User + system CPU time of a running process (Linux /proc)."""
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            fields = stat.read().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    except (OSError, IndexError, ValueError):
-        return None
-
-
 def replay_and_watch(bag: Path, robots, rate: float, timeout: float, settle_timeout: float, node_pid: int,
                      log_dir: Path):
     """Replay the robots' inputs at ``rate`` while watching /diagnostics and ~/landmarks; what was seen."""
     import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import PointCloud2
 
     topics = [f"/{r}/{k}" for r in robots for k in KINDS]
     context = Context()
@@ -86,16 +75,7 @@ def replay_and_watch(bag: Path, robots, rate: float, timeout: float, settle_time
     seen = {"landmarks": None, "diag": {}}
     try:
         node = rclpy.create_node("fleet_replay_check", context=context)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        node.create_subscription(PointCloud2, "/online_em_slam/landmarks",
-                                 lambda m: seen.__setitem__("landmarks", m), latched)
-
-        def on_diag(msg):
-            for status in msg.status:
-                if status.name.startswith("online_em_slam:"):
-                    seen["diag"] = {kv.key: kv.value for kv in status.values}
-        node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QoSProfile(depth=50))
+        watch_map_and_diagnostics(node, seen)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", str(rate), "--clock",

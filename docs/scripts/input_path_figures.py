@@ -44,16 +44,30 @@ def process_cpu_seconds(pid: int) -> float | None:
         return None
 
 
+def watch_map_and_diagnostics(node, seen: dict) -> None:
+    """The node's latched map into seen["landmarks"], its /diagnostics values into seen["diag"]."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    node.create_subscription(PointCloud2, "/online_em_slam/landmarks", lambda m: seen.__setitem__("landmarks", m),
+                             latched)
+
+    def on_diag(msg):
+        for status in msg.status:
+            if status.name.startswith("online_em_slam:"):
+                seen["diag"] = {kv.key: kv.value for kv in status.values}
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QoSProfile(depth=50))
+
+
 def record(bag, rate, timeout=400.0):
     """Replay ``bag`` at ``rate`` and record the node's outputs; returns what was seen."""
     import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseWithCovarianceStamped
     from nav_msgs.msg import Path as PathMsg
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import PointCloud2
 
     context = Context()
     rclpy.init(context=context)
@@ -66,14 +80,7 @@ def record(bag, rate, timeout=400.0):
             (time.monotonic(), m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec)),
             QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE))
         node.create_subscription(PathMsg, "/online_em_slam/path", lambda m: seen.__setitem__("path", m), latched)
-        node.create_subscription(PointCloud2, "/online_em_slam/landmarks",
-                                 lambda m: seen.__setitem__("landmarks", m), latched)
-
-        def on_diag(msg):
-            for status in msg.status:
-                if status.name.startswith("online_em_slam:"):
-                    seen["diag"] = {kv.key: kv.value for kv in status.values}
-        node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QoSProfile(depth=50))
+        watch_map_and_diagnostics(node, seen)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", str(rate), "--clock",
