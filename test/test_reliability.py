@@ -263,3 +263,19 @@ def test_a_time_line_restart_keeps_the_map_and_takes_earlier_stamps():
     slam.add_observations(10.1, Observations(np.array([4.9]), np.zeros(1), np.array([7])))
     after = slam.landmarks()
     assert len(after) == 1 and after.n_obs[0] == before.n_obs[0] + 1 and "out_of_order" not in slam.drops
+
+
+def test_throttled_log_calls_the_logger_once_per_period_and_key():
+    """A warning repeated per input costs a dictionary lookup while throttled (ros/throttle.py)."""
+    from online_em_slam.ros.throttle import Throttle
+    now, said = [0.0], []
+
+    class Logger:
+        def warning(self, message):
+            said.append(message)
+    throttle = Throttle(Logger, lambda: 5.0, clock=lambda: now[0])
+    for t in (0.0, 1.0, 4.9, 5.0, 6.0):
+        now[0] = t
+        throttle.warning("a", f"a at {t}")
+        throttle.warning("b", f"b at {t}", period=1.0)
+    assert said == ["a at 0.0", "b at 0.0", "b at 1.0", "b at 4.9", "a at 5.0", "b at 6.0"]

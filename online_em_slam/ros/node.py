@@ -64,6 +64,7 @@ from ..parameters.specs import (ParameterError, all_specs, as_declared_type, bui
 from .qos import input_qos, latched_qos
 from .map_files import MapFiles
 from .services import Commands
+from .throttle import Throttle
 
 __all__ = ["OnlineEmSlamNode", "input_qos", "latched_qos", "main"]
 
@@ -200,6 +201,7 @@ class OnlineEmSlamNode(LifecycleNode):
         self._slam = self._new_estimator()
         self._pending_config = None
         self.drops: Counter = Counter()             # node-level drops by reason
+        self.throttle = Throttle(self.get_logger, lambda: self.settings.warn_throttle_period)
         self._core_drops_carry: Counter = Counter()  # drops of estimators replaced at a reset
         self.paused = False
 

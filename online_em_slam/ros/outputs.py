@@ -75,17 +75,16 @@ class Outputs:
     # ------------------------------------------------------------------ from the input pipeline
     def applied(self, item, fed) -> None:
         """One input the pipeline applied: the path, the particles and the update statistics."""
-        node, s = self.node, self.node.settings
+        node = self.node
         try:
             self._record(fed)
             if fed.error is not None:       # counted by the feeder; the estimator is as before the input
-                node.get_logger().error(f"{KIND_NAME[item.kind]} at {item.stamp:.3f} failed and was dropped, "
-                                        f"the estimate kept: {fed.error!r}",
-                                        throttle_duration_sec=s.warn_throttle_period)
+                node.throttle.error("input_failed", f"{KIND_NAME[item.kind]} at {item.stamp:.3f} failed and was "
+                                    f"dropped, the estimate kept: {fed.error!r}")
         except Exception as error:  # noqa: BLE001 - bad input must never stop the node
             node.drops["internal_error"] += 1
-            node.get_logger().error(f"failed to process {KIND_NAME[item.kind]} at {item.stamp:.3f}: {error!r}",
-                                    throttle_duration_sec=s.warn_throttle_period)
+            node.throttle.error("output_failed",
+                                f"failed to process {KIND_NAME[item.kind]} at {item.stamp:.3f}: {error!r}")
         self.diagnostics.latency(time.monotonic() - item.wall)
 
     def _record(self, fed) -> None:
@@ -97,9 +96,8 @@ class Outputs:
             return
         dropped, _ = split_decisions(report.dropped)          # decisions are no fault: not warned about
         if dropped:
-            self.node.get_logger().warning("observations dropped by the estimator: "
-                                           + ", ".join(f"{k}={v}" for k, v in sorted(dropped.items())),
-                                           throttle_duration_sec=self.node.settings.warn_throttle_period)
+            self.node.throttle.warning("estimator_drops", "observations dropped by the estimator: "
+                                       + ", ".join(f"{k}={v}" for k, v in sorted(dropped.items())))
         self.diagnostics.updated(report)
         self.map_dirty = True
         self.publish_particles()
@@ -130,8 +128,7 @@ class Outputs:
         estimate = slam.pose()
         if not (np.all(np.isfinite(estimate.mean)) and np.all(np.isfinite(estimate.covariance))):
             node.drops["non_finite_estimate"] += 1
-            node.get_logger().error("estimate is not finite; pose not published",
-                                    throttle_duration_sec=s.warn_throttle_period)
+            node.throttle.error("non_finite_estimate", "estimate is not finite; pose not published")
             return
         self.pose_covariance = estimate.covariance
         self.pose_covariance_36 = conv.pose_to_msg(Header(), estimate).pose.covariance   # reused per odometry
@@ -139,9 +136,8 @@ class Outputs:
             self._publish_pose(stamp, estimate.mean)
         odom_pose = self.odom_at(stamp)
         if odom_pose is None and s.publish_tf:
-            node.get_logger().warning(
-                f"no recent odometry on {s.odom_topic!r} at {stamp:.3f} s: map -> odom not updated",
-                throttle_duration_sec=30.0)
+            node.throttle.warning("no_recent_odometry", f"no recent odometry on {s.odom_topic!r} at {stamp:.3f} s: "
+                                  "map -> odom not updated", period=30.0)
         if odom_pose is not None:
             map_to_odom = conv.pose2d_compose(estimate.mean, conv.pose2d_inverse(odom_pose))
             if np.all(np.isfinite(map_to_odom)):
