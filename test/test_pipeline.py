@@ -257,6 +257,38 @@ def test_pipeline_sheds_observations_only_when_shedding_and_loaded():
         assert pipeline.feeder.motion_seen
 
 
+def test_pipeline_sheds_observations_unread_while_the_motion_inputs_wait_too_long():
+    """Reliability, second round, item 2: shedding by the time the inputs waited in their queues
+    (input_max_wait), the motion input's wait or the cloud's own; never with shedding off."""
+    config = SlamConfig.from_dict({"motion": {"model": "odometry"}, "filter": {"seed": 1, "num_particles": 10}})
+    for shedding, max_wait, expected in ((True, 0.25, [False, True, True, False]),
+                                         (True, 0.0, [False] * 4), (False, 0.25, [False] * 4)):
+        pipeline = InputPipeline(OnlineEMSlam(config), "odom", 0.0, 1.0, shedding=shedding, max_wait=max_wait)
+        verdicts = [pipeline.overdue(0.1)]
+        pipeline.waited(0.3)                           # the last odometry waited 0.3 s
+        verdicts.append(pipeline.overdue(0.1))
+        pipeline.waited(0.01)
+        verdicts += [pipeline.overdue(0.5), pipeline.overdue(0.2)]
+        assert verdicts == expected, (shedding, max_wait)
+
+
+def test_observations_shed_unread_keep_their_stream_on_the_time_line():
+    """Car Park at 20x with 1,000 particles: every cloud shed for a while, the next one read was
+    more than time_jump_threshold ahead of the lagging controls and of the last cloud the guard had
+    seen, so it was held as a jump (4,439 stamp_outlier). A shed cloud's stamp now counts as heard."""
+    config = SlamConfig.from_dict({"motion": {"model": "odometry"}, "filter": {"seed": 1, "num_particles": 10}})
+    pipeline = InputPipeline(OnlineEMSlam(config), "odom", 1.0, 1.0, shedding=True, max_wait=0.25)
+    pipeline.push(ODOMETRY, 0.0, (0.0, 0.0, 0.0), 0.0)
+    pipeline.push(OBSERVATIONS, 0.0, obs(5.0), 0.0)
+    for k in range(1, 40):                             # clouds shed up to 9.75 s, odometry at 5 s
+        pipeline.shed(OBSERVATIONS, 0.25 * k, 0.0)
+        if k <= 20:
+            pipeline.push(ODOMETRY, 0.25 * k, (0.01 * k, 0.0, 0.0), 0.0)
+    pipeline.push(OBSERVATIONS, 10.0, obs(5.0), 0.0)
+    assert pipeline.path.guard.holding == 0 and "stamp_outlier" not in pipeline.drops
+    assert pipeline.drops["overload"] == 39
+
+
 def test_load_monitor():
     load = LoadMonitor(window=1.0, limit=0.9)
     for k in range(100):
@@ -315,6 +347,23 @@ def test_a_watched_stream_running_behind_under_load_stays_on_the_time_line():
     assert path.drops == Counter()
     # A lone bad stamp of the watched stream is still off the time line.
     assert not path.on_time_line(ODOMETRY, 0.0 - 5.0) and not path.on_time_line(ODOMETRY, 1e6)
+
+
+def test_a_watched_stream_running_ahead_under_load_stays_on_the_time_line():
+    """Reliability, second round, item 2 (Car Park at 20x): the node reads each queue in batches, so
+    the odometry, cheap to read, ran more than time_jump_threshold ahead of the controls, whose
+    updates are slow, and 5,044 odometry messages were refused as stamp_outlier and their holes
+    counted as odometry_lost."""
+    path = InputPath((CONTROL, OBSERVATIONS), silence=1.0, jump_threshold=1.0)
+    on_line = []
+    for k in range(400):                                  # odometry 0-10 s
+        on_line.append(path.on_time_line(ODOMETRY, 0.025 * k))
+        path.watch(ODOMETRY, 0.025 * k)
+        if k < 200:                                       # the controls 5 s behind at the end
+            path.push(CONTROL, 0.025 * k, (1.0, 0.0), 0.0)
+    assert all(on_line), on_line.index(False)
+    assert path.drops == Counter()
+    assert not path.on_time_line(ODOMETRY, 1e6) and not path.on_time_line(ODOMETRY, 2.0)
 
 
 def test_a_stream_draining_late_across_a_loop_seam_restarts_once_not_at_every_input():

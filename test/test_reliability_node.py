@@ -205,3 +205,37 @@ def test_flood_scan_is_bounded_and_the_published_map_holds_confirmed_landmarks(r
     assert {m.id for m in markers if m.ns.endswith("/ids")} == {1, 2}
     assert ros.spin_until(lambda: ros.decided().get("new_landmark_limit", 0) > 0, 5.0), ros.decided()
     assert ros.diagnostics()["confirmed_landmarks"] == "2"
+
+
+# ----------------------------------------------------------------- second round, item 2
+def test_under_overload_the_node_sheds_observations_never_motion_and_bounds_its_lag(ros, monkeypatch):
+    """Reliability, second round, item 2: observation updates that cost more than the inputs'
+    period (each made to take 30 ms) with best-effort inputs 100 ms of data apart published at
+    once: every odometry message is used, clouds are shed unread once the inputs waited longer
+    than input_max_wait (counted as overload), the lag stays near that bound (unshed, 300 clouds
+    at 30 ms would keep the last odometry waiting 9 s) and nothing is reported lost."""
+    import time as _time
+    from online_em_slam.core.filter.slam import OnlineEMSlam
+    slow = OnlineEMSlam.add_observations
+
+    def add_observations(self, *args, **kwargs):
+        _time.sleep(0.03)
+        return slow(self, *args, **kwargs)
+    monkeypatch.setattr(OnlineEMSlam, "add_observations", add_observations)
+    node = ros.start(motion_source="odom", publish_particles=False, input_delay=0.5, input_max_wait=0.2,
+                     **{"filter.num_particles": 20})
+    moves = []
+    monkeypatch.setattr(node.slam, "add_odometry", lambda stamp, pose, _f=node.slam.add_odometry:
+                        moves.append(stamp) or _f(stamp, pose))
+    n = 300
+    for k in range(n):
+        t = T0 + 0.1 * k
+        ros.odom(t, 0.1 * k, 0.0, 0.0)
+        ros.cloud(t, [5.0 - 0.1 * k % 3.0], [0.0], [1])
+    assert ros.spin_until(lambda: len(moves) >= n - 1 and not len(node.inputs.pipeline), 20.0), len(moves)
+    ros.spin_for(0.5)
+    drops, diag = node.all_drops(), ros.diagnostics()
+    assert len(moves) >= n - 1                            # the last odometry may wait for a cloud after it
+    assert drops.get("overload", 0) > n // 2, drops
+    assert not {k for k in drops if k.endswith("_lost") or k in ("out_of_order", "stamp_outlier")}, drops
+    assert float(diag["queue_wait_peak_ms"]) < 1000.0, diag["queue_wait_peak_ms"]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import subprocess
@@ -23,14 +24,15 @@ from pathlib import Path
 import numpy as np
 
 INPUTS = ("/control", "/odom", "/landmark_observations")
+BAG_SECONDS = 125.05        # the Car Park bag's duration
 
 
-def start_node(params, initial, seed, reliability, log):
+def start_node(params, initial, seed, reliability, log, extra=()):
     cmd = [sys.executable, "-m", "online_em_slam.ros.node", "--ros-args", "--params-file", str(params),
            "-p", "use_sim_time:=true", "-p", f"filter.seed:={seed}", "-p", f"initial_pose.x:={initial.x:.9f}",
            "-p", f"initial_pose.y:={initial.y:.9f}", "-p", f"initial_pose.yaw:={initial.yaw:.12f}",
            "-p", "publish_particles:=false", "-p", "path_publish_max_poses:=20000",
-           "-p", f"input_qos.reliability:={reliability}"]
+           "-p", f"input_qos.reliability:={reliability}", *(a for kv in extra for a in ("-p", kv))]
     return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
 
 
@@ -57,11 +59,13 @@ def watch_map_and_diagnostics(node, seen: dict) -> None:
         for status in msg.status:
             if status.name.startswith("online_em_slam:"):
                 seen["diag"] = {kv.key: kv.value for kv in status.values}
+                seen.setdefault("diag_series", []).append(seen["diag"])
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QoSProfile(depth=50))
 
 
-def record(bag, rate, timeout=400.0):
-    """Replay ``bag`` at ``rate`` and record the node's outputs; returns what was seen."""
+def record(bag, rate, timeout=400.0, loops=0):
+    """Replay ``bag`` at ``rate`` (``loops`` > 0: in a loop, stopped after that many passes) and
+    record the node's outputs; returns what was seen."""
     import rclpy
     from geometry_msgs.msg import PoseWithCovarianceStamped
     from nav_msgs.msg import Path as PathMsg
@@ -71,25 +75,38 @@ def record(bag, rate, timeout=400.0):
 
     context = Context()
     rclpy.init(context=context)
-    seen = {"poses": [], "path": None, "landmarks": None, "diag": {}}
+    from rosgraph_msgs.msg import Clock
+    seen = {"poses": [], "path": None, "landmarks": None, "diag": {}, "clock": None, "lags": []}
     try:
         node = rclpy.create_node("input_path_recorder", context=context)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        node.create_subscription(PoseWithCovarianceStamped, "/online_em_slam/pose", lambda m: seen["poses"].append(
-            (time.monotonic(), m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec)),
-            QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE))
+        def on_pose(m):
+            stamp = m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
+            seen["poses"].append((time.monotonic(), stamp))
+            if seen["clock"] is not None and seen["clock"] >= stamp:   # behind the replay's clock (not across a seam)
+                seen["lags"].append(seen["clock"] - stamp)
+        node.create_subscription(PoseWithCovarianceStamped, "/online_em_slam/pose", on_pose,
+                                 QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE))
+        node.create_subscription(Clock, "/clock", lambda m: seen.__setitem__(
+            "clock", m.clock.sec + 1e-9 * m.clock.nanosec), QoSProfile(depth=10))
         node.create_subscription(PathMsg, "/online_em_slam/path", lambda m: seen.__setitem__("path", m), latched)
         watch_map_and_diagnostics(node, seen)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", str(rate), "--clock",
                "--topics", *INPUTS, "--wait-subscribers", *(f"{t}:1" for t in INPUTS), "/clock:1",
-               "--wait-timeout", "60", "--start-delay", "2", "--quiet"]
+               "--wait-timeout", "60", "--start-delay", "2", "--quiet"] + (["--loop"] if loops else [])
         replay = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + timeout
+        stop_at = None
         while replay.poll() is None and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.01)
+            if loops and stop_at is None and seen["clock"] is not None:
+                stop_at = time.monotonic() + loops * BAG_SECONDS / rate
+            if stop_at is not None and time.monotonic() > stop_at:
+                replay.send_signal(signal.SIGINT)     # the replay prints its summary and exits
+                stop_at = math.inf
         out, err = replay.communicate(timeout=30)
         summary = json.loads(out.strip().splitlines()[-1])
         published, seen["replay_wall_s"] = summary["published"], summary["wall_seconds"]
@@ -114,14 +131,16 @@ def summarise(seen, rate):
     total = sum(seen["published"].values())
     poses = np.array(seen["poses"]).reshape(-1, 2)
     order = np.argsort(poses[:, 1], kind="stable")
-    return {"rate": rate, "messages_per_s": round(total / (125.05 / rate), 1), "published": total,
+    return {"rate": rate, "messages_per_s": round(total / (BAG_SECONDS / rate), 1), "published": total,
             "achieved_messages_per_s": round(total / seen["replay_wall_s"], 1),
             "received": received, "lost": total - received, "drops": drops,
             "load_max": float(diag.get("load_max", "nan")), "pose_messages": len(poses),
             "max_pose_gap_wall_ms": round(1e3 * float(np.diff(poses[:, 0]).max()), 1) if len(poses) > 1 else None,
             "max_pose_gap_stamp_ms": round(1e3 * float(np.diff(poses[order, 1]).max()), 1)
             if len(poses) > 1 else None,
-            "largest_wall_gaps": _largest_gaps(poses)}
+            "largest_wall_gaps": _largest_gaps(poses),
+            "lag_max_bag_s": round(max(seen["lags"]), 3) if seen["lags"] else None,
+            "lag_p99_bag_s": round(float(np.percentile(seen["lags"], 99)), 3) if seen["lags"] else None}
 
 
 def _largest_gaps(poses, n=3):
@@ -170,6 +189,9 @@ def main(argv=None) -> int:
     parser.add_argument("--rates", type=float, nargs="+", default=[1.0])
     parser.add_argument("--reliability", default="best_effort", choices=("best_effort", "reliable"))
     parser.add_argument("--compare", action="store_true", help="compare with the offline runner")
+    parser.add_argument("--loops", type=int, default=0, help="play the bag in a loop, this many passes")
+    parser.add_argument("--series", action="store_true", help="print the /diagnostics series too")
+    parser.add_argument("--set", nargs="+", default=[], metavar="NAME:=VALUE", help="node parameters")
     parser.add_argument("--output", default="out/input_path")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
@@ -181,9 +203,9 @@ def main(argv=None) -> int:
     bag, params, values, config, settings, inputs, initial = car_park(out, args.seed)
     for rate in args.rates:
         with open(out / f"node_rate{rate:g}.log", "w") as log:
-            node = start_node(params, initial, args.seed, args.reliability, log)
+            node = start_node(params, initial, args.seed, args.reliability, log, args.set)
             try:
-                seen = record(bag, rate)
+                seen = record(bag, rate, loops=args.loops)
                 seen["node_cpu_s"] = process_cpu_seconds(node.pid)
             finally:
                 node.send_signal(signal.SIGINT)
@@ -195,6 +217,10 @@ def main(argv=None) -> int:
                   "loadavg": os.getloadavg()}
         if args.compare:
             result.update(compare(seen, inputs, config, settings, initial))
+        if args.series:
+            result["series"] = [{k: d.get(k) for k in ("queue_wait_max_ms", "load", "dropped.overload",
+                                                        "dropped.stamp_outlier", "dropped.odometry_lost", "resets")}
+                                for d in seen.get("diag_series", [])]
         print(json.dumps(result), flush=True)
     return 0
 

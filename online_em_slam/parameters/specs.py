@@ -110,6 +110,10 @@ NODE_SPECS = (
               "publishers).", choices=RELIABILITIES, read_only=True),
     ParamSpec("input_qos.depth", 1000, "Input queue depth (best_effort; the resource hint of reliable).",
               1, 100000, read_only=True),
+    ParamSpec("input_max_wait", 0.25, "Best-effort inputs: an observation cloud that waited longer than this "
+              "(wall-clock s) in its subscription's queue is shed unread (dropped.overload), so that the "
+              "motion inputs, never shed, keep up and the estimate lags the inputs by about this much at most "
+              "(0: shed by load alone).", 0.0, 60.0),
     ParamSpec("input_delay", 1.0, "Inputs are processed in stamp order: each waits until every active "
               "input stream has delivered a message at least as recent (lossless at any replay rate); a "
               "stream silent for this long (wall-clock s) stops holding the others back. Must exceed the "
@@ -168,6 +172,7 @@ class NodeSettings:
     observations_topic: str = "landmark_observations"
     input_reliability: str = "best_effort"
     input_depth: int = 1000
+    input_max_wait: float = 0.25
     input_delay: float = 1.0
     reset_on_time_jump: bool = True
     time_jump_threshold: float = 1.0

@@ -70,8 +70,11 @@ class InputPath:
         return Pushed(self._sequence(item, wall))
 
     def heard(self, kind: int, stamp: float, wall: float) -> list[Input]:
-        """A message with a usable stamp but an unusable payload: its stream is alive up to ``stamp``."""
-        if math.isfinite(stamp) and not self.guard.is_jump(Input(float(stamp), kind)):
+        """A message with a usable stamp but an unusable payload (or one shed unread): its stream is
+        alive up to ``stamp``, and later stamps of the stream are judged against it."""
+        item = Input(float(stamp), kind)
+        if math.isfinite(stamp) and not self.guard.is_jump(item):
+            self.guard.accept(item)
             self.gaps.observe(kind, float(stamp))      # a message that came is not a lost one
             self.sequencer.heard(kind, float(stamp), wall)
         return self.sequencer.release(wall)

@@ -39,13 +39,14 @@ def merged_streams(motion_source: str) -> tuple[int, ...]:
 class InputPipeline:
     """Owns the input path, the feeder and load shedding of one estimator.
 
-    ``shedding``: skip observation updates while the load is above the limit
+    ``shedding``: skip observation updates while the load is above the limit or
+    while the inputs wait longer than ``max_wait`` (s) in the transport's queues
     (best-effort inputs that would otherwise overflow; never for lossless
     inputs).  ``clock``: wall time for the load (seconds, monotonic).
     """
 
     def __init__(self, estimator, motion_source: str, input_delay: float, jump_threshold: float, *,
-                 restart_on_jump_back: bool = True, shedding: bool = False,
+                 restart_on_jump_back: bool = True, shedding: bool = False, max_wait: float = 0.0,
                  on_applied: Applied | None = None, on_settled: Settled | None = None,
                  on_jump: Jumped | None = None, clock: Callable[[], float] = time.monotonic) -> None:
         self.motion_kind = merged_streams(motion_source)[0]
@@ -55,6 +56,8 @@ class InputPipeline:
         self.load = LoadMonitor()
         self.max_load = 0.0
         self.shedding = shedding
+        self.max_wait = float(max_wait)
+        self.lag = 0.0                 # how long the last odometry or control message waited (s)
         self.on_applied = on_applied
         self.on_settled = on_settled
         self.on_jump = on_jump
@@ -111,6 +114,29 @@ class InputPipeline:
     def watch(self, kind: int, stamp: float) -> None:
         """A periodic stream that is not merged: see :meth:`InputPath.watch`."""
         self.path.watch(kind, stamp)
+
+    def read_ahead_span(self) -> float:
+        """How far in stamps one stream's queue may be read ahead of the others' (s): the merge
+        restores stamp order, and half the jump threshold keeps a stream read later from looking
+        like a jump back; 0 with the merge off (inputs used in arrival order)."""
+        return 0.5 * self.path.guard.threshold if self.path.sequencer.silence > 0 else 0.0
+
+    def waited(self, seconds: float) -> None:
+        """A motion or odometry message waited ``seconds`` in its queue before it was read."""
+        self.lag = seconds
+
+    def overdue(self, waited: float) -> bool:
+        """An observation that waited ``waited`` s, or one read while the last motion message had
+        waited longer than ``max_wait``, is shed unread: an update costs more than all the motion
+        inputs queued behind it, which would otherwise overflow their queue or go stale.
+        The executor reads every subscription in turn, so the motion queues, the busier, lag
+        first; the observations' own wait stays short (``max_wait`` 0: never)."""
+        return self.shedding and 0.0 < self.max_wait < max(waited, self.lag)
+
+    def shed(self, kind: int, stamp: float, wall: float) -> None:
+        """An input shed unread (``overload``): its stamp still advances its stream."""
+        self.drops["overload"] += 1
+        self.heard(kind, stamp, wall)
 
     def busy(self, end: float, seconds: float) -> None:
         """``seconds`` of input handling that ended at ``end`` (clock time): the load."""

@@ -53,15 +53,17 @@ class StampGuard:
         reference = self._reference(item.kind)
         if reference is None:
             return False
-        # Before any checked input, a watched stream's own stamps are the only line there is.
-        newest = max(self._newest.values()) if self._newest else reference
+        # Ahead is judged against the newest stamp of any stream, the stream's own included: a
+        # watched stream whose queue drains faster than the merged ones' (odometry ahead of the
+        # controls under load) runs ahead of them on its own line, and is no jump.
+        newest = max(max(self._newest.values(), default=reference), reference)
         return item.stamp < reference - self.threshold or item.stamp > newest + self.threshold
 
     def check(self, item: Input) -> Verdict:
         if not self.is_jump(item):
             if any(c.kind == item.kind for c in self._candidate):
                 self._refute()
-            self._accept(item)
+            self.accept(item)
             return Verdict(ACCEPT)
         if self._candidate and not self._agrees(item):
             self._refute()
@@ -90,7 +92,7 @@ class StampGuard:
             self._newest.pop(kind, None)
         self._watched = {}                         # never checked, so never moved: judged anew
         for item in held:
-            self._accept(item)
+            self.accept(item)
         return Verdict(JUMPED, held, backward, abs(held[0].stamp - old))
 
     def note(self, kind: int, stamp: float) -> None:
@@ -99,6 +101,7 @@ class StampGuard:
         previous = self._watched.get(kind)
         self._watched[kind] = stamp if previous is None else max(previous, stamp)
 
-    def _accept(self, item: Input) -> None:
+    def accept(self, item: Input) -> None:
+        """``item`` is on the time line: later inputs of its stream are judged against it."""
         previous = self._newest.get(item.kind)
         self._newest[item.kind] = item.stamp if previous is None else max(previous, item.stamp)

@@ -6,6 +6,7 @@ Every function that writes floats into a message refuses non-finite values
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 from builtin_interfaces.msg import Time as TimeMsg
@@ -34,6 +35,15 @@ COVARIANCE_INDEX = {(0, 0): 0, (0, 1): 1, (0, 2): 5, (1, 0): 6, (1, 1): 7, (1, 2
 
 def stamp_to_sec(stamp) -> float:
     return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+
+
+def queue_wait(info) -> float:
+    """Seconds a message waited between its reception by the middleware and now (its MessageInfo's
+    ``received_timestamp``, system clock ns); 0 where the middleware does not say."""
+    received = info.get("received_timestamp") if info else None
+    if not received:
+        return 0.0
+    return max(time.time_ns() - int(received), 0) * 1e-9
 
 
 def sec_to_stamp(seconds: float) -> TimeMsg:

@@ -31,6 +31,7 @@ class Diagnostics:
         self.window_start = time.monotonic()
         self.window_updates = self.window_inputs = 0
         self.latencies: list[float] = []
+        self.queue_wait_max = self.queue_wait_peak = 0.0   # s an input waited in its subscription's queue
         self.last_ess = float("nan")
         self.resets = 0
         self.drops_reported = 0
@@ -52,6 +53,11 @@ class Diagnostics:
     def latency(self, seconds: float) -> None:
         """Arrival of an input to its use by the estimator."""
         self.latencies.append(seconds)
+
+    def waited(self, seconds: float) -> None:
+        """An input waited ``seconds`` in its subscription's queue before it was read."""
+        self.queue_wait_max = max(self.queue_wait_max, seconds)
+        self.queue_wait_peak = max(self.queue_wait_peak, seconds)
 
     def count_reset(self) -> None:
         self.last_ess = float("nan")
@@ -98,6 +104,8 @@ class Diagnostics:
                 "input_rate_hz": self.window_inputs / span,
                 "latency_mean_ms": 1e3 * float(latencies.mean()) if latencies.size else 0.0,
                 "latency_max_ms": 1e3 * float(latencies.max()) if latencies.size else 0.0,
+                "queue_wait_max_ms": 1e3 * self.queue_wait_max,
+                "queue_wait_peak_ms": 1e3 * self.queue_wait_peak,
                 "ess": self.last_ess if math.isfinite(self.last_ess) else float(node.config.filter.num_particles),
                 "num_particles": slam.config.filter.num_particles,
                 "landmarks": len(landmarks),
@@ -135,6 +143,7 @@ class Diagnostics:
             self.drops_reported = total
             self.window_start, self.window_updates, self.window_inputs = now, 0, 0
             self.latencies = []
+            self.queue_wait_max = 0.0
             stamp = node.now_sec()
             if stamp <= 0.0 and slam.last_stamp is not None:
                 stamp = slam.last_stamp

@@ -13,9 +13,12 @@ uses), which applies what it releases to the estimator and calls the outputs
 back.  Every message with a readable stamp tells the pipeline its stream is
 alive, used or not; an input that cannot be used is dropped and counted by
 reason, with a throttled warning.  When the node cannot keep up with
-best-effort inputs the pipeline sheds observation updates
-(``dropped.overload``), never motion; reliable inputs are never shed (the
-publisher waits).
+best-effort inputs it sheds observation updates (``dropped.overload``), never
+motion: while the last motion input (or the cloud itself) waited longer than
+``input_max_wait`` in its subscription's queue (from the message's reception
+time in its MessageInfo), a cloud is not even decoded; and while the share of
+time spent on inputs exceeds the load limit the pipeline skips updates.
+Reliable inputs are never shed (the publisher waits).
 """
 from __future__ import annotations
 
@@ -32,6 +35,7 @@ from ..pipeline import CONTROL, KIND_NAME, OBSERVATIONS, ODOMETRY, InputPipeline
 from . import conversions as conv
 from .input_watch import InputWatch, Stream, publishers_text
 from .qos import input_qos
+from .queue_drain import draining
 from .tf import SensorFrames
 
 # Odometry positions beyond this (m) are absurd (the map's coordinate range, as initial_pose.*).
@@ -52,7 +56,8 @@ class Inputs:
         self.pending_jump = False
         self.pipeline = InputPipeline(node.slam, s.motion_source, s.input_delay, s.time_jump_threshold,
                                       restart_on_jump_back=s.reset_on_time_jump,
-                                      shedding=self.sheds(s), on_applied=outputs.applied,
+                                      shedding=self.sheds(s), max_wait=s.input_max_wait,
+                                      on_applied=outputs.applied,
                                       on_settled=outputs.settled, on_jump=self._on_jump)
         self.motion_kind = self.pipeline.motion_kind
         self.odom_sub = self.control_sub = self.obs_sub = None
@@ -62,12 +67,12 @@ class Inputs:
         """The input subscriptions (the lifecycle's activate); silent until heard."""
         node, s = self.node, self.node.settings
         qos = input_qos(s.input_reliability, s.input_depth)
-        self.odom_sub = node.create_subscription(Odometry, s.odom_topic, self.on_odom, qos,
+        self.odom_sub = node.create_subscription(Odometry, s.odom_topic, self._reader(ODOMETRY), qos,
                                                  event_callbacks=self._events(s.odom_topic))
         if s.motion_source == "control":
-            self.control_sub = node.create_subscription(TwistStamped, s.control_topic, self.on_control,
+            self.control_sub = node.create_subscription(TwistStamped, s.control_topic, self._reader(CONTROL),
                                                         qos, event_callbacks=self._events(s.control_topic))
-        self.obs_sub = node.create_subscription(PointCloud2, s.observations_topic, self.on_observations,
+        self.obs_sub = node.create_subscription(PointCloud2, s.observations_topic, self._reader(OBSERVATIONS),
                                                 qos, event_callbacks=self._events(s.observations_topic))
         now = time.monotonic()
         self.watch.clear(now)
@@ -78,6 +83,15 @@ class Inputs:
             if sub is not None:
                 self.watch.expect(Stream(key, sub.topic_name, parameter, required), now)
         self._unheard_warned = set()
+
+    def _reader(self, kind: int):
+        """The subscription callback of ``kind``: its message, then those queued behind it while the
+        stream may be read ahead (queue_drain.py); a motion queue found empty has no lag."""
+        handle, subscription = {ODOMETRY: (self.on_odom, lambda: self.odom_sub),
+                                CONTROL: (self.on_control, lambda: self.control_sub),
+                                OBSERVATIONS: (self.on_observations, lambda: self.obs_sub)}[kind]
+        emptied = (lambda: None) if kind == OBSERVATIONS else (lambda: self.pipeline.waited(0.0))
+        return draining(handle, subscription, self.pipeline.read_ahead_span, emptied)
 
     def unsubscribe(self) -> None:
         """No more inputs (the lifecycle's deactivate); the estimate and the queue's counters stay."""
@@ -97,15 +111,15 @@ class Inputs:
         """Parameters changed at run time: the merge window and shedding follow."""
         self.pipeline.set_input_delay(settings.input_delay)
         self.pipeline.shedding = self.sheds(settings)
+        self.pipeline.max_wait = settings.input_max_wait
 
     def _events(self, topic: str) -> SubscriptionEventCallbacks:
         node = self.node
 
         def incompatible(info) -> None:
-            node.get_logger().error(
-                f"publisher on {topic!r} has an incompatible QoS (policy {info.last_policy_kind}); "
-                "for best-effort publishers set input_qos.reliability: best_effort (the default)",
-                throttle_duration_sec=node.settings.warn_throttle_period)
+            node.throttle.error(f"incompatible_qos:{topic}",
+                                f"publisher on {topic!r} has an incompatible QoS (policy {info.last_policy_kind}); "
+                                "for best-effort publishers set input_qos.reliability: best_effort (the default)")
 
         def lost(info) -> None:
             with node.lock:
@@ -113,9 +127,12 @@ class Inputs:
         return SubscriptionEventCallbacks(incompatible_qos=incompatible, message_lost=lost)
 
     # ------------------------------------------------------------------ callbacks
-    def on_odom(self, msg: Odometry) -> None:
+    # ``info``: the MessageInfo of a message read from the queue behind another (queue_drain.py);
+    # how long it waited there is the node's lag behind its inputs.
+    def on_odom(self, msg: Odometry, info=None) -> None:
         node = self.node
         started = time.monotonic()
+        self._waited(ODOMETRY, info)
         self.watch.heard(node.settings.odom_topic, started)
         stamp = conv.stamp_to_sec(msg.header.stamp)
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
@@ -155,9 +172,10 @@ class Inputs:
                 self.outputs.publish_odometry_pose(stamp, pose)
             self.pipeline.busy(time.monotonic(), time.monotonic() - started)
 
-    def on_control(self, msg: TwistStamped) -> None:
+    def on_control(self, msg: TwistStamped, info=None) -> None:
         node = self.node
         started = time.monotonic()
+        self._waited(CONTROL, info)
         self.watch.heard(node.settings.control_topic, started)
         control = np.array([msg.twist.linear.x, msg.twist.angular.z], dtype=float)
         stamp = conv.stamp_to_sec(msg.header.stamp)
@@ -171,12 +189,17 @@ class Inputs:
             self._input(CONTROL, stamp, control, started)
             self.pipeline.busy(time.monotonic(), time.monotonic() - started)
 
-    def on_observations(self, msg: PointCloud2) -> None:
+    def on_observations(self, msg: PointCloud2, info=None) -> None:
         node = self.node
         started = time.monotonic()
         self.watch.heard(node.settings.observations_topic, started)
         stamp = conv.stamp_to_sec(msg.header.stamp)
         with node.lock:
+            if self.pipeline.overdue(self._waited(OBSERVATIONS, info)) and not node.paused:
+                self.diagnostics.count_input()       # received, not read: counted as overload
+                self.pipeline.shed(OBSERVATIONS, stamp, started)
+                self.pipeline.busy(time.monotonic(), time.monotonic() - started)
+                return
             try:
                 # Observations with invalid ids, zero ranges or wild bearings are left out and counted.
                 observations = conv.observations_from_cloud(msg, drops=node.drops)
@@ -191,16 +214,29 @@ class Inputs:
             self._input(OBSERVATIONS, stamp, observations, started)
             self.pipeline.busy(time.monotonic(), time.monotonic() - started)
 
+    def _waited(self, kind: int, info) -> float:
+        """How long the message waited in its queue (s; 0 when not known): the lag, into the pipeline
+        and /diagnostics."""
+        if info is None:
+            return 0.0
+        seconds = conv.queue_wait(info)
+        self.diagnostics.waited(seconds)
+        if kind != OBSERVATIONS:
+            self.pipeline.waited(seconds)
+        return seconds
+
     def _refuse(self, kind: int, stamp: float, reason: str, what: str, started: float) -> None:
         """An input whose payload is unusable: counted, and its stamp still advances its stream."""
         node = self.node
         node.drops[reason] += 1
-        node.get_logger().warning(f"dropped {what}", throttle_duration_sec=node.settings.warn_throttle_period)
+        node.throttle.warning(f"refused:{reason}", f"dropped {what}")
         if not node.paused and kind in (self.motion_kind, OBSERVATIONS):
             self.pipeline.heard(kind, stamp, started)
 
     def _input(self, kind: int, stamp: float, payload, started: float) -> None:
-        if kind != OBSERVATIONS or len(payload):
+        # An empty cloud is counted as dropped.empty_cloud; one the reader emptied was a cloud of
+        # points, each counted under its reason, and is an input received.
+        if kind != OBSERVATIONS or len(payload) or getattr(payload, "refused_points", 0):
             self.diagnostics.count_input()
         if self.node.paused:
             self.node.drops["paused"] += 1
