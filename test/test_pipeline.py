@@ -366,6 +366,28 @@ def test_a_watched_stream_running_ahead_under_load_stays_on_the_time_line():
     assert not path.on_time_line(ODOMETRY, 1e6) and not path.on_time_line(ODOMETRY, 2.0)
 
 
+def test_a_watched_stream_keeps_its_line_when_sparse_clouds_jump_ahead_of_lagging_controls():
+    """Issue 25's fleet replay at 5x: a robot's clouds (one every few seconds) overtook its lagging
+    control queue by more than time_jump_threshold; three of them confirmed a jump ahead, the guard
+    forgot the odometry's own line, and every later odometry message, behind the clouds, was
+    refused as stamp_outlier (28,000 of 30,000 per robot)."""
+    path = InputPath((CONTROL, OBSERVATIONS), silence=1.0, jump_threshold=1.0)
+    for k in range(40):                                   # 0-1 s: together
+        path.push(CONTROL, 0.025 * k, (1.0, 0.0), 0.0)
+        path.watch(ODOMETRY, 0.025 * k)
+    for t in (3.0, 3.1, 3.2):                             # clouds 2 s ahead of the queues: a jump ahead
+        path.push(OBSERVATIONS, t, EMPTY, 0.0)
+    assert path.guard.holding == 0
+    on_line = []
+    for k in range(40, 120):                              # the queues catch up, 1-3 s
+        path.push(CONTROL, 0.025 * k, (1.0, 0.0), 0.0)
+        on_line.append(path.on_time_line(ODOMETRY, 0.025 * k))
+        if on_line[-1]:
+            path.watch(ODOMETRY, 0.025 * k)
+    assert all(on_line), on_line.index(False)
+    assert "stamp_outlier" not in path.drops
+
+
 def test_a_stream_draining_late_across_a_loop_seam_restarts_once_not_at_every_input():
     """Soak (issue 12 figures): the Car Park bag played in a loop into a loaded node; the controls'
     queue drained 3.5 s behind the clouds across the seam. After the clouds confirmed the jump back,
