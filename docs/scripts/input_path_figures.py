@@ -3,11 +3,16 @@ DDS into the node (separate processes) at several rates.
 
     python docs/scripts/input_path_figures.py --rates 1 --reliability reliable   # agreement, pose gaps
     python docs/scripts/input_path_figures.py --rates 10 20 30 40 60              # sustained rate sweep
+    python docs/scripts/input_path_figures.py --rates 20 --loops 5 [--set filter.num_particles:=1000]
+                                                                    # overload: five passes in a loop
 
 Per rate: messages published and received, drops by reason, the node's peak load, the
 largest gap between consecutive ~/pose messages (wall arrival time in this process and
 stamps), and, with --compare, the node's ~/path and ~/landmarks against the offline runner
-(``online-em-slam run``'s feed, in memory) on the same bag with the same settings.  Prints one JSON line per rate.
+(``online-em-slam run``'s feed, in memory) on the same bag with the same settings; the
+node's peak queue wait (``queue_wait_peak_ms``) and how far its ~/pose stamps ran behind the
+replay's /clock (``lag_*_bag_s``); ``--series``: every /diagnostics message's queue wait,
+load and drops.  Prints one JSON line per rate.
 """
 from __future__ import annotations
 
@@ -127,14 +132,17 @@ def record(bag, rate, timeout=400.0, loops=0):
 def summarise(seen, rate):
     diag = seen["diag"]
     drops = {k.split(".", 1)[1]: int(v) for k, v in diag.items() if k.startswith("dropped.")}
-    received = int(diag.get("inputs", 0)) + sum(drops.get(k, 0) for k in ("empty_cloud", "malformed_cloud"))
+    # An empty cloud is not an input but a decision (decided.empty_cloud); a malformed one a drop.
+    received = (int(diag.get("inputs", 0)) + int(diag.get("decided.empty_cloud", 0))
+                + drops.get("malformed_cloud", 0))
     total = sum(seen["published"].values())
     poses = np.array(seen["poses"]).reshape(-1, 2)
     order = np.argsort(poses[:, 1], kind="stable")
     return {"rate": rate, "messages_per_s": round(total / (BAG_SECONDS / rate), 1), "published": total,
             "achieved_messages_per_s": round(total / seen["replay_wall_s"], 1),
             "received": received, "lost": total - received, "drops": drops,
-            "load_max": float(diag.get("load_max", "nan")), "pose_messages": len(poses),
+            "load_max": float(diag.get("load_max", "nan")),
+            "queue_wait_peak_ms": float(diag.get("queue_wait_peak_ms", "nan")), "pose_messages": len(poses),
             "max_pose_gap_wall_ms": round(1e3 * float(np.diff(poses[:, 0]).max()), 1) if len(poses) > 1 else None,
             "max_pose_gap_stamp_ms": round(1e3 * float(np.diff(poses[order, 1]).max()), 1)
             if len(poses) > 1 else None,
