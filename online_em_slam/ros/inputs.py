@@ -234,7 +234,7 @@ class Inputs:
             self.pipeline.heard(kind, stamp, started)
 
     def _input(self, kind: int, stamp: float, payload, started: float) -> None:
-        # An empty cloud is counted as dropped.empty_cloud; one the reader emptied was a cloud of
+        # An empty cloud is counted as decided.empty_cloud; one the reader emptied was a cloud of
         # points, each counted under its reason, and is an input received.
         if kind != OBSERVATIONS or len(payload) or getattr(payload, "refused_points", 0):
             self.diagnostics.count_input()

@@ -15,25 +15,18 @@ from __future__ import annotations
 
 from typing import Callable
 
+from .conversions import stamp_to_sec
+
 DRAIN_LIMIT = 64     # messages taken per wake beyond the one the executor handed out
 
 
-def waiting_messages(subscription, limit: int = DRAIN_LIMIT) -> list:
-    """Up to ``limit`` (message, MessageInfo) pairs waiting in ``subscription``'s queue."""
-    out = []
+def next_waiting(subscription):
+    """The (message, MessageInfo) pair next in ``subscription``'s queue, None when it is empty
+    (or the subscription is gone)."""
     if subscription is None:
-        return out
+        return None
     with subscription.handle:
-        for _ in range(limit):
-            taken = subscription.handle.take_message(subscription.msg_type, subscription.raw)
-            if taken is None:
-                break
-            out.append(taken)
-    return out
-
-
-def _stamp(msg) -> float:
-    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        return subscription.handle.take_message(subscription.msg_type, subscription.raw)
 
 
 def draining(handle: Callable, subscription: Callable, span: Callable[[], float],
@@ -53,13 +46,13 @@ def draining(handle: Callable, subscription: Callable, span: Callable[[], float]
         ahead = span()
         if ahead <= 0:
             return
-        first = _stamp(msg)
+        first = stamp_to_sec(msg.header.stamp)
         for _ in range(limit):
-            taken = waiting_messages(subscription(), 1)
-            if not taken:
+            taken = next_waiting(subscription())
+            if taken is None:
                 emptied()
                 return
-            handle(*taken[0])
-            if _stamp(taken[0][0]) - first >= ahead:
+            handle(*taken)
+            if stamp_to_sec(taken[0].header.stamp) - first >= ahead:
                 return
     return callback
