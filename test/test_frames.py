@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from online_em_slam.offline import report
-from online_em_slam.offline.evaluation import InitialPose, landmark_metrics
+from online_em_slam.offline.evaluation import InitialPose, landmark_metrics, landmark_metrics_by_id, rotate_points
 from online_em_slam.offline.frames import (SAME_FRAME_HEADING_DEG, check_frame, compose, inverse, points_to_truth,
                                            poses_to_truth)
 
@@ -51,6 +51,22 @@ def test_an_estimate_in_another_frame_scores_as_it_would_in_the_truth_frame():
     check = check_frame(InitialPose(0.0, 0.0, 0.0, 0.0, "default (0, 0, 0)"), TRUTH_START, gate=2.0)
     moved = landmark_metrics(points_to_truth(check, estimate), truth, gate=2.0)
     assert moved.n_matched == 15 and moved.rmse == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_map_in_a_turned_frame_counts_within_the_gate_after_its_rigid_fit():
+    """Landmarks within 1 m of a map exact up to its frame (turned, shifted): few in the truth
+    frame, all once the best rigid fit moves it, paired by id or by position; one landmark
+    1.5 m off its place stays out either way."""
+    rng = np.random.default_rng(1)
+    truth = rng.uniform(-5, 5, size=(15, 2))
+    estimate = rotate_points(truth, np.array(0.3)) + [1.0, -2.0]
+    estimate[4] += rotate_points(np.array([[1.5, 0.0]]), np.array(0.3))[0]
+    by_id = landmark_metrics_by_id(estimate, np.arange(15), truth, np.arange(15), gate=1.0)
+    assert by_id.n_matched < 14 and by_id.n_matched_fitted == 14
+    nearer = rotate_points(truth, np.array(0.15)) + [0.5, -0.5]       # most pairs found by position
+    nearer[4] += [1.5, 0.0]
+    by_position = landmark_metrics(nearer, truth, gate=1.0)
+    assert by_position.n_matched < 14 and by_position.n_matched_fitted == 14
 
 
 def test_the_summary_says_when_the_estimate_was_moved():

@@ -77,6 +77,9 @@ class LandmarkMetrics:
     gate: float
     shape_error: float = math.nan     # RMSE after the best rigid fit (see map_error_split)
     frame_error: float = math.nan     # sqrt(rmse^2 - shape_error^2)
+    # Within the gate once the best rigid fit of the paired estimates is applied: the map
+    # as a map, whatever frame its start gave it (n_matched: in the truth's frame).
+    n_matched_fitted: int = 0
     matches: list[LandmarkMatch] = field(default_factory=list)
     missed: list[int] = field(default_factory=list)       # indices into the true landmarks
     spurious: list[int] = field(default_factory=list)     # ids of the unmatched estimates
@@ -94,13 +97,34 @@ def landmark_metrics(estimated, truth, gate: float = DEFAULT_MATCH_GATE, estimat
     true landmark, or losing its true landmark to a closer estimate, is spurious.
     ``estimated_ids`` (default 0..M-1) name the spurious estimates in the result.
     """
-    from scipy.optimize import linear_sum_assignment
-
     est = np.asarray(estimated, dtype=float).reshape(-1, 2)
     tru = np.asarray(truth, dtype=float).reshape(-1, 2)
     ids = np.arange(len(est)) if estimated_ids is None else np.asarray(estimated_ids, dtype=int).reshape(-1)
     if len(ids) != len(est):
         raise ValueError(f"{len(ids)} ids for {len(est)} estimated landmarks")
+    matches = _assigned(est, tru, ids, gate)
+    matched_true = {m.true_index for m in matches}
+    matched_est = {m.estimate_index for m in matches}
+    errors = np.array([m.error for m in matches])
+    _, shape, frame = map_error_split(est[[m.estimate_index for m in matches]],
+                                      tru[[m.true_index for m in matches]])
+    fitted = _matched_after_fit(est, tru, matches, gate)
+    return LandmarkMetrics(
+        n_true=len(tru), n_estimated=len(est), n_matched=len(matches),
+        n_missed=len(tru) - len(matches), n_spurious=len(est) - len(matches),
+        rmse=float(np.sqrt(np.mean(errors ** 2))) if errors.size else math.nan,
+        mean_error=float(errors.mean()) if errors.size else math.nan,
+        max_error=float(errors.max()) if errors.size else math.nan,
+        gate=float(gate), shape_error=float(shape), frame_error=float(frame), n_matched_fitted=fitted,
+        matches=matches, missed=[i for i in range(len(tru)) if i not in matched_true],
+        spurious=[int(ids[j]) for j in range(len(est)) if j not in matched_est])
+
+
+def _assigned(est: np.ndarray, tru: np.ndarray, ids: np.ndarray, gate: float) -> list[LandmarkMatch]:
+    """The one-to-one assignment of estimates (M, 2) to true landmarks (K, 2) of least summed
+    distance over pairs within ``gate``, sorted by true landmark."""
+    from scipy.optimize import linear_sum_assignment
+
     matches: list[LandmarkMatch] = []
     if len(est) and len(tru):
         dist = np.linalg.norm(tru[:, None, :] - est[None, :, :], axis=-1)       # (K, M)
@@ -110,21 +134,16 @@ def landmark_metrics(estimated, truth, gate: float = DEFAULT_MATCH_GATE, estimat
         for r, c in zip(rows, cols):
             if np.isfinite(dist[r, c]) and dist[r, c] <= gate:
                 matches.append(LandmarkMatch(int(r), int(c), int(ids[c]), float(dist[r, c])))
-    matches.sort(key=lambda m: m.true_index)
-    matched_true = {m.true_index for m in matches}
-    matched_est = {m.estimate_index for m in matches}
-    errors = np.array([m.error for m in matches])
-    _, shape, frame = map_error_split(est[[m.estimate_index for m in matches]],
-                                      tru[[m.true_index for m in matches]])
-    return LandmarkMetrics(
-        n_true=len(tru), n_estimated=len(est), n_matched=len(matches),
-        n_missed=len(tru) - len(matches), n_spurious=len(est) - len(matches),
-        rmse=float(np.sqrt(np.mean(errors ** 2))) if errors.size else math.nan,
-        mean_error=float(errors.mean()) if errors.size else math.nan,
-        max_error=float(errors.max()) if errors.size else math.nan,
-        gate=float(gate), shape_error=float(shape), frame_error=float(frame), matches=matches,
-        missed=[i for i in range(len(tru)) if i not in matched_true],
-        spurious=[int(ids[j]) for j in range(len(est)) if j not in matched_est])
+    return sorted(matches, key=lambda m: m.true_index)
+
+
+def _matched_after_fit(est: np.ndarray, tru: np.ndarray, matches: list[LandmarkMatch], gate: float) -> int:
+    """Estimates (M, 2) matched to the truth (K, 2) within ``gate`` by position once moved by
+    the best rigid fit of the ``matches``."""
+    if len(matches) < 2:                       # one pair fixes no rotation
+        return len(matches)
+    moved = fitted_onto(est, est[[m.estimate_index for m in matches]], tru[[m.true_index for m in matches]])
+    return len(_assigned(moved, tru, np.arange(len(est)), gate))
 
 
 def landmark_metrics_by_id(estimated, estimated_ids, truth, truth_ids, gate: float = DEFAULT_MATCH_GATE
@@ -149,14 +168,16 @@ def landmark_metrics_by_id(estimated, estimated_ids, truth, truth_ids, gate: flo
     matches = sorted((LandmarkMatch(r, j, int(ids[j]), float(e)) for (r, j), e in zip(pairs, errors) if e <= gate),
                      key=lambda m: m.true_index)
     rmse, shape, frame = map_error_split(est[[j for _, j in pairs]], tru[[r for r, _ in pairs]])
+    e, t = est[[j for _, j in pairs]], tru[[r for r, _ in pairs]]
+    fitted = int(np.sum(np.hypot(*(fitted_onto(e, e, t) - t).T) <= gate)) if len(pairs) >= 2 else len(pairs)
     matched_true, matched_est = {m.true_index for m in matches}, {m.estimate_index for m in matches}
     return LandmarkMetrics(
         n_true=len(tru), n_estimated=len(est), n_matched=len(matches), n_missed=len(tru) - len(matches),
         n_spurious=len(est) - len(matches), rmse=float(rmse),
         mean_error=float(errors.mean()) if errors.size else math.nan,
         max_error=float(errors.max()) if errors.size else math.nan,
-        gate=float(gate), shape_error=float(shape), frame_error=float(frame), matches=matches,
-        missed=[i for i in range(len(tru)) if i not in matched_true],
+        gate=float(gate), shape_error=float(shape), frame_error=float(frame), n_matched_fitted=fitted,
+        matches=matches, missed=[i for i in range(len(tru)) if i not in matched_true],
         spurious=[int(ids[j]) for j in range(len(est)) if j not in matched_est], paired_by="id")
 
 
@@ -195,6 +216,12 @@ def rigid_fit_2d(estimated, truth) -> tuple[np.ndarray, np.ndarray]:
     angle = np.arctan2(np.sum(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0], axis=-1),
                        np.sum(a * b, axis=(-2, -1)))
     return angle, (mu_t - rotate_points(mu_e, angle))[..., 0, :]
+
+
+def fitted_onto(points, estimated, truth) -> np.ndarray:
+    """``points`` (n, 2) moved by the best rigid fit of ``estimated`` onto ``truth`` (m, 2), paired."""
+    angle, c = rigid_fit_2d(estimated, truth)
+    return rotate_points(np.asarray(points, dtype=float), angle) + c
 
 
 def map_error_split(estimated, truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -269,7 +269,8 @@ def record(item: Item, status: str, metrics: dict, error: str = "") -> dict:
            "seconds": item.seconds, "ids": item.ids, "method": item.method, "noise": item.noise,
            "seed": item.seed, "status": status, "error": error or None, "dir": item.out or item.bag,
            "landmark_rmse": lm.get("rmse"), "landmark_shape": lm.get("shape_error"),
-           "landmark_frame": lm.get("frame_error"), "matched": lm.get("n_matched"), "n_true": lm.get("n_true"),
+           "landmark_frame": lm.get("frame_error"), "matched": lm.get("n_matched"),
+           "matched_fitted": lm.get("n_matched_fitted"), "n_true": lm.get("n_true"),
            "spurious": lm.get("n_spurious"), "trajectory_rmse": tr.get("rmse"),
            "mean_step_ms": tm.get("mean_step_ms"), "estimator_wall_s": tm.get("wall_time_s"),
            "item_wall_s": (metrics.get("benchmark") or {}).get("item_wall_s")}
