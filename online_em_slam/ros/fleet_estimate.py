@@ -65,7 +65,9 @@ class FleetEstimate:
         self.fleet.save_map(path)
 
     def load_map(self, path: str, restore_pose: bool = True) -> None:
-        raise NotImplementedError("loading a map file is not available in fleet mode yet")
+        """A map file (a fleet's or a single robot's) becomes the one map; every robot restarts on
+        it, robot 0 relocalising around the file's pose, the others around their own (FleetSlam.load_map)."""
+        self.fleet.load_map(path, restore_pose)
 
     def set_pose(self, pose, std=None) -> None:
         raise NotImplementedError("fleet mode: set a robot's pose with initial_poses")

@@ -144,6 +144,12 @@ class FleetInputs:
         for io in self.robots:
             io.outputs.publish_map()
 
+    def clear_paths(self) -> None:
+        """Every robot's path starts again (a loaded map restarted each robot's filter)."""
+        for io in self.robots:
+            io.outputs.path.clear()
+            io.outputs.map_dirty = True
+
     def republish_transform(self) -> None:
         for io in self.robots:
             io.outputs.republish_transform()

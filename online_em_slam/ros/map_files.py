@@ -113,6 +113,8 @@ class MapFiles:
             node.inputs.pipeline.checkpoint()
             node.outputs.map_dirty = True
             node.outputs.path.clear()
+            if node.fleet_mode:          # every robot's filter restarted on the loaded map
+                node.inputs.clear_paths()
         node.outputs.publish_map()
         return True, f"loaded {len(node.slam.landmarks())} landmarks from {path}"
 

@@ -452,16 +452,20 @@ class OnlineEMSlam:
         """Rebuild the landmark table and the M-step state from :meth:`_m_step_arrays` output."""
         persistence.restore_map(self._map, self._m_step, arrays)
 
-    def _restore_noise(self, arrays: dict[str, np.ndarray]) -> None:
-        """The learned noise of a map file becomes the learner's starting point (when
-        learning is on and the file's mixture has the configured number of components)."""
+    def resume_from_file(self, loaded: dict[str, np.ndarray], relocalise_at=None) -> None:
+        """After a map file's map is in (:meth:`load_map`, FleetSlam.load_map): its learned noise starts
+        the learner (when learning is on and the mixture's size matches), the warm-up is forgotten and
+        the robot relocalises around ``relocalise_at`` (3,) (None: it stays where it was reset)."""
         try:
-            saved = persistence.saved_noise(arrays, self.config.noise)
+            saved = persistence.saved_noise(loaded, self.config.noise)
         except ValueError:
+            saved = None
             self.drops["map_noise_mismatch"] += 1      # another noise model: keep the configured one
-            return
         if saved is not None:
             self._noise.start_from(*saved)             # the file has no motion gains: they are learned again
+        self._warmup.discard()
+        if relocalise_at is not None:
+            self.relocalise(relocalise_at)
 
     def save_map(self, path: str) -> None:
         """Write map, statistics, counts and pose atomically (core/mapping/mapfile.py).
@@ -481,18 +485,14 @@ class OnlineEMSlam:
         (MapFileError, a ValueError naming the file) the estimate is left unchanged.
         """
         loaded = mapfile.read_map(path, max_landmarks=self.config.association.max_landmarks)
-        pose = loaded["pose"].copy()
-        pose[2] = wrap_angle(pose[2])
+        pose = persistence.saved_pose(loaded) if restore_pose else None
         # reset() rebinds attributes rather than mutating arrays, so a shallow copy of
         # the instance dict is a complete snapshot to fall back to.
         snapshot = dict(self.__dict__)
         try:
-            self.reset(pose if restore_pose else None, self._input.last_stamp)
+            self.reset(pose, self._input.last_stamp)
             self._restore_map(loaded)
-            self._restore_noise(loaded)
-            self._warmup.discard()
-            if restore_pose:
-                self.relocalise(pose)
+            self.resume_from_file(loaded, pose)
         except BaseException:
             self.__dict__.clear()
             self.__dict__.update(snapshot)

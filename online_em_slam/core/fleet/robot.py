@@ -4,9 +4,11 @@
 prediction, association, observation terms, noise learner, motion input) with the
 landmark table and the M-step replaced by the fleet's shared ones (shared_map.py).
 What would restart the map from one robot (a new pass, loading a map file) is
-refused: the map is the fleet's.
+refused: the map is the fleet's (FleetSlam.load_map loads a file for every robot).
 """
 from __future__ import annotations
+
+import numpy as np
 
 from ..config import SlamConfig
 from ..filter.slam import OnlineEMSlam
@@ -19,15 +21,33 @@ class FleetRobot(OnlineEMSlam):
     def __init__(self, config: SlamConfig, initial_pose, stamp: float | None, table: FleetLandmarkTable,
                  m_step: RobotMStep) -> None:
         self.shared_table = table
-        super().__init__(config, initial_pose, stamp, m_step_factory=lambda *_: m_step)
+        self.shared_m_step = m_step
+        super().__init__(config, initial_pose, stamp, m_step_factory=self._fleet_m_step)
+
+    def _fleet_m_step(self, *_) -> RobotMStep:
+        # A bound method, not a closure: a rollback's deep copy (pipeline/rollback.py) copies it
+        # with the robot, so a reset after a restore still takes the fleet's current M-step.
+        return self.shared_m_step
 
     def reset(self, initial_pose=None, stamp: float | None = None) -> None:
         """The robot's filter restarts; the map stays the fleet's (use :meth:`set_pose` to move it)."""
         super().reset(initial_pose, stamp)
         self._map = self.shared_table
 
+    @property
+    def initial_pose(self) -> np.ndarray:
+        """(3,) where the filter last restarted (:meth:`reset`'s pose, to which ``reset()`` returns)."""
+        return self._initial_pose.copy()
+
+    def join_map(self, table: FleetLandmarkTable, m_step: RobotMStep, pose) -> None:
+        """The fleet replaced its map (FleetSlam.load_map): the filter restarts at ``pose`` (3,) on
+        ``table`` and ``m_step``, its time line kept, as a single robot's does when it loads a file."""
+        self.shared_table, self.shared_m_step = table, m_step
+        self.reset(pose, self.last_stamp)
+
     def start_new_pass(self, initial_pose=None, stamp: float | None = None) -> None:
         raise NotImplementedError("a fleet robot has no passes of its own: the map is the fleet's")
 
     def load_map(self, path: str, restore_pose: bool = True) -> None:
-        raise NotImplementedError("a fleet robot cannot load a map: the map is the fleet's")
+        raise NotImplementedError("a fleet robot cannot load a map on its own: FleetSlam.load_map loads "
+                                  "one for the whole fleet")

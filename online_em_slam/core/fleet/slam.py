@@ -21,6 +21,7 @@ import numpy as np
 
 from ..config import SlamConfig
 from ..em.observed import ObservedInformationEM
+from ..mapping import mapfile, persistence
 from ..types import LandmarkMap, Observations, PoseEstimate, StepReport
 from .robot import FleetRobot
 from .shared_map import FleetLandmarkTable, RobotMStep
@@ -111,11 +112,66 @@ class FleetSlam:
     def particles(self, robot: int) -> tuple[np.ndarray, np.ndarray]:
         return self.robot(robot).particles()
 
+    # ------------------------------------------------------------------ map files
     def save_map(self, path: str) -> None:
         """Write the joint map as a single robot's map file (OnlineEMSlam.save_map): the map, its
-        information and counts, with robot 0's pose and learned noise, so a single robot or
-        the node loads it.  Loading a file into a fleet is not supported yet."""
+        information and counts, with robot 0's pose and learned noise, so a single robot, the
+        node or a fleet (:meth:`load_map`) loads it."""
         self._robots[0].save_map(path)
+
+    def load_map(self, path: str, restore_pose: bool = True) -> None:
+        """Replace the fleet's map by a map file's (one written by :meth:`save_map` or by a single
+        robot, OnlineEMSlam.save_map: the same format); EM continues from its information and counts.
+
+        The file's landmarks (theta (M, 2), ids, observation counts, confirmed flags) become the
+        one table every robot associates against, each with its information (2, 2) as a prior
+        of the shared M-step.  Every robot's filter restarts as a single robot's does on a load
+        (its time line kept, the file's learned noise its noise learner's starting point).  The
+        file holds one pose, the saving robot's, and no pose per robot; with ``restore_pose``:
+
+        * robot 0 relocalises around the file's pose (a fleet saves robot 0's pose, a single
+          robot its own);
+        * every other robot relocalises around its current mean pose, which stays in the map
+          frame the fleet shares;
+
+        relocalising, a robot creates no landmark until its particles have narrowed
+        (OnlineEMSlam.relocalise).  Without ``restore_pose`` every robot restarts at its
+        initial pose and does not relocalise (OnlineEMSlam.load_map's ``restore_pose=False``).
+
+        The file is validated completely before anything changes; on any error (MapFileError,
+        a ValueError naming the file) the fleet, its map and its robots stay as they were.
+        """
+        loaded = mapfile.read_map(path, max_landmarks=self.config.association.max_landmarks)
+        poses = self._poses_after_load(loaded, restore_pose)
+        snapshot = [(owner, dict(owner.__dict__)) for owner in (self, *self._robots)]
+        try:
+            self._replace_map(poses)
+            persistence.restore_map(self._map, self._m_step, loaded)
+            for robot, pose in zip(self._robots, poses):
+                robot.resume_from_file(loaded, pose if restore_pose else None)
+        except BaseException:
+            # Every change above rebinds attributes of the fleet or its robots (new table,
+            # M-step and filter state), so the shallow copies put everything back.
+            for owner, state in snapshot:
+                owner.__dict__.clear()
+                owner.__dict__.update(state)
+            raise
+
+    def _poses_after_load(self, loaded: dict[str, np.ndarray], restore_pose: bool) -> np.ndarray:
+        """(R, 3) where each robot restarts on a loaded map (see :meth:`load_map`)."""
+        if not restore_pose:
+            return np.array([robot.initial_pose for robot in self._robots])
+        poses = np.array([robot.pose().mean for robot in self._robots])
+        poses[0] = persistence.saved_pose(loaded)
+        return poses
+
+    def _replace_map(self, poses: np.ndarray) -> None:
+        """An empty table and M-step with key poses ``poses`` (R, 3); every robot's filter restarts
+        on them at its pose."""
+        self._m_step = ObservedInformationEM(self.config, poses)
+        self._map = FleetLandmarkTable(clock=self._clock)
+        for r, robot in enumerate(self._robots):
+            robot.join_map(self._map, RobotMStep(self._m_step, r), poses[r])
 
     def landmarks(self, confirmed_only: bool = False) -> LandmarkMap:
         """The fleet's map theta with covariances and observation counts (every robot's)."""

@@ -13,6 +13,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..config import ObservationNoiseConfig
+from ..models.angles import wrap_angle
 from .landmarks import LandmarkTable
 
 
@@ -31,6 +32,13 @@ def restore_map(table: LandmarkTable, m_step, arrays: dict[str, np.ndarray]) -> 
     table.confirmed[:] = arrays["confirmed"]
     table.created[:] = np.zeros(m, dtype=np.int64)
     m_step.restore(arrays, table.theta)
+
+
+def saved_pose(arrays: dict[str, np.ndarray]) -> np.ndarray:
+    """The pose (3,) of a map file (the saving robot's, where a reload relocalises), yaw wrapped."""
+    pose = np.array(arrays["pose"], dtype=float)
+    pose[2] = wrap_angle(pose[2])
+    return pose
 
 
 def saved_noise(arrays: dict[str, np.ndarray],
