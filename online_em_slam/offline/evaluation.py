@@ -77,9 +77,7 @@ class LandmarkMetrics:
     gate: float
     shape_error: float = math.nan     # RMSE after the best rigid fit (see map_error_split)
     frame_error: float = math.nan     # sqrt(rmse^2 - shape_error^2)
-    # Within the gate once the best rigid fit of the paired estimates is applied: the map
-    # as a map, whatever frame its start gave it (n_matched: in the truth's frame).
-    n_matched_fitted: int = 0
+    n_matched_fitted: int = 0     # within the gate after the best rigid fit (n_matched: truth's frame)
     matches: list[LandmarkMatch] = field(default_factory=list)
     missed: list[int] = field(default_factory=list)       # indices into the true landmarks
     spurious: list[int] = field(default_factory=list)     # ids of the unmatched estimates
@@ -138,8 +136,7 @@ def _assigned(est: np.ndarray, tru: np.ndarray, ids: np.ndarray, gate: float) ->
 
 
 def _matched_after_fit(est: np.ndarray, tru: np.ndarray, matches: list[LandmarkMatch], gate: float) -> int:
-    """Estimates (M, 2) matched to the truth (K, 2) within ``gate`` by position once moved by
-    the best rigid fit of the ``matches``."""
+    """Estimates (M, 2) matched to the truth (K, 2) within ``gate`` once moved by the matches' fit."""
     if len(matches) < 2:                       # one pair fixes no rotation
         return len(matches)
     moved = fitted_onto(est, est[[m.estimate_index for m in matches]], tru[[m.true_index for m in matches]])
