@@ -54,8 +54,9 @@ class WarmupReplay:
         fresh = estimator._warmup
         fresh.discard()
         estimator._noise.start_from(noise, scale, gains, scales)
-        for method, stamp, value in inputs:
-            getattr(estimator, method)(stamp, value)
+        with estimator._noise.held():                   # the warm-up's values, learned from these inputs
+            for method, stamp, value in inputs:
+                getattr(estimator, method)(stamp, value)
         estimator.drops.clear()
         estimator.drops.update(drops)
         fresh.replayed = True
