@@ -208,6 +208,24 @@ def test_real_dataset1_two_robots_fleet_batch_60_s(d1_two_robots, tmp_path, caps
         assert (out / robot / "trajectory.csv").is_file()
 
 
+def test_real_dataset1_two_robots_fleet_batch_with_robot_reads_60_s(d1_two_robots, tmp_path, capsys):
+    """The MRCLAM front end of the fleet batch: every read between robots 1 and 2 in the bag's 60 s
+    gets both poses (none left without a variable) and the robots stay on their ground truth."""
+    pytest.importorskip("gtsam")
+    from online_em_slam.datasets.mrclam.fleet_batch import main
+    out = tmp_path / "batch"
+    assert main([str(d1_two_robots), "--params", str(PARAMS), "--output", str(out),
+                 "--robot-reads", str(REAL_DATASET1)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    reads = metrics["robot_reads"]
+    assert reads["in_the_bag"] > 0 and reads["used"] + sum(reads["left_out"].values()) == reads["in_the_bag"]
+    assert "no_pose_variable" not in reads["left_out"] and reads["not_in_the_bag"]["robot_not_in_fleet"] > 0
+    assert metrics["landmarks"]["n_matched"] >= 10
+    for robot in ("robot1", "robot2"):
+        assert metrics["robots"][robot]["trajectory"]["rmse"] < 0.5
+    assert "robot-to-robot reads" in capsys.readouterr().out
+
+
 def test_real_dataset1_two_robots_compare_fleet_60_s(d1_two_robots, tmp_path, capsys):
     """compare --fleet: the fleet run and the five-robot batch with the files' and the learned noise."""
     pytest.importorskip("gtsam")

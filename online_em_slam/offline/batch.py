@@ -48,6 +48,7 @@ from ..core.models.observation import (MIN_DISTANCE, information_noise, inverse_
                                        sensor_poses)
 from ..pipeline.inputs import CONTROL, OBSERVATIONS, ODOMETRY
 from ..baselines.gtsam_batch import compose, levenberg_marquardt, symbols, tangent_covariance
+from .extra_poses import ExtraPoses
 
 
 @dataclass
@@ -142,6 +143,17 @@ class _MotionBook:
             self._advance_to(stamp)
         self.motion_seen = True
 
+    def cut(self, stamp: float) -> tuple[np.ndarray, np.ndarray]:
+        """The motion since the last pose variable up to ``stamp`` (>= the last input's), a pose
+        variable the estimator does not have (:func:`collect_problem`'s ``extra_poses``).  The
+        odometry model's next increment keeps its own time step, so only a held control is
+        integrated; the step jitter keeps the covariance regular on a robot standing still."""
+        if not self.motion.uses_odometry and stamp >= self.input.last_stamp:
+            self._advance_to(stamp)
+        out = (self.pose.copy(), self.cov + step_jitter(self.motion))
+        self.pose, self.cov = np.zeros(3), np.zeros((3, 3))
+        return out
+
     def scan(self, stamp: float, observations) -> tuple[np.ndarray, np.ndarray] | None:
         """The motion since the last pose variable (increment, covariance) if the estimator
         would filter this scan, else None (counted)."""
@@ -175,8 +187,14 @@ def usable_observations(config: SlamConfig, obs, skipped: Counter) -> np.ndarray
     return keep
 
 
-def collect_problem(events, config: SlamConfig, motion_source: str | None = None) -> InputsProblem:
-    """Pose variables, compounded motion and observations from (kind, stamp, payload[, log_time]) events."""
+def collect_problem(events, config: SlamConfig, motion_source: str | None = None,
+                    extra_poses=()) -> InputsProblem:
+    """Pose variables, compounded motion and observations from (kind, stamp, payload[, log_time]) events.
+
+    ``extra_poses``: stamps (E,) that get a pose variable too, with no observation (a scan at the
+    same stamp is that variable); those before the first motion input or after the last input
+    get none (counted in ``skipped``).  Find them in the problem's ``stamps``.
+    """
     config = config.validate()
     if motion_source is None:
         motion_source = "odom" if config.motion.uses_odometry else "control"
@@ -185,19 +203,17 @@ def collect_problem(events, config: SlamConfig, motion_source: str | None = None
     noise = information_noise(config.noise)
     stamps, increments, covs = [], [], []
     obs_pose, obs_id, obs_y, obs_R = [], [], [], []
+    extra = ExtraPoses(extra_poses, book, stamps, increments, covs)
     for event in events:
         kind, stamp, payload = event[0], float(event[1]), event[2]
+        extra.before(stamp)
         if kind != OBSERVATIONS:
             book.motion_input(kind, stamp, payload)
             continue
         motion = book.scan(stamp, payload)
         if motion is None:
             continue
-        if not stamps:
-            stamps.append(book.start)
-        stamps.append(stamp)
-        increments.append(motion[0])
-        covs.append(motion[1])
+        extra.pose_variable(stamp, motion)
         keep = usable_observations(config, payload, skipped)
         known = keep & (payload.ids >= 0)
         skipped["unknown_id"] += int((keep & (payload.ids < 0)).sum())
@@ -208,6 +224,7 @@ def collect_problem(events, config: SlamConfig, motion_source: str | None = None
         obs_id.append(obs.ids)
         obs_y.append(np.stack([obs.ranges, obs.bearings], axis=1))
         obs_R.append(noise_covariance(noise, obs.ranges, obs.range_std, obs.bearing_std))
+    extra.finish()
     if not stamps and book.start is not None:
         stamps.append(book.start)
     cat = (lambda parts, shape, dtype=float: np.concatenate(parts).astype(dtype) if parts
@@ -296,9 +313,10 @@ def batch_from_inputs(events, config: SlamConfig, initial_pose, max_iterations: 
 
 def solve_problem(problem: InputsProblem, config: SlamConfig, initial_pose, max_iterations: int = 100,
                   initial_pose_std: tuple[float, float, float] = (1e-3, 1e-3, 1e-4),
-                  init: str = "dead_reckoning") -> InputsBatchResult:
+                  init: str = "dead_reckoning", extra_factors=None) -> InputsBatchResult:
     """The batch ML optimum of a collected problem (:func:`batch_from_inputs`); ``initial_pose``: one
-    (x, y, yaw) per chain of ``problem.chain_starts``."""
+    (x, y, yaw) per chain of ``problem.chain_starts``.  ``extra_factors(gtsam)``: more factors on
+    the pose variables (``symbols(gtsam)[0](k)``) for Levenberg-Marquardt, not for the starting point."""
     started = time.perf_counter()
     import gtsam  # optional dependency, see gtsam_batch
 
@@ -309,6 +327,8 @@ def solve_problem(problem: InputsProblem, config: SlamConfig, initial_pose, max_
 
     X, L = symbols(gtsam)
     graph, values = build_graph(gtsam, problem, config, initial, ids, landmark_guess, initial_pose_std)
+    for factor in extra_factors(gtsam) if extra_factors is not None else ():
+        graph.add(factor)
     optimizer, result = levenberg_marquardt(gtsam, graph, values, max_iterations)
     poses = np.array([[p.x(), p.y(), p.theta()] for p in (result.atPose2(X(k)) for k in range(len(initial)))])
     landmarks = np.array([np.asarray(result.atPoint2(L(int(j))), float).reshape(2) for j in ids]).reshape(-1, 2)

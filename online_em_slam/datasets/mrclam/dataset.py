@@ -33,6 +33,9 @@ Messy input handled here:
 * ``seconds``: only the first S seconds from the first odometry sample are kept of
   every stream; the rows cut are counted in ``MrclamRun.truncated`` (ground-truth rows
   outside the odometry's time span too), not as drops.
+
+The robots' reads of each other's barcodes (``other_robot`` above) are read on their own by
+:func:`load_robot_reads` (:class:`RobotReads`), for a fleet's batch (offline/robot_reads.py).
 """
 from __future__ import annotations
 
@@ -305,3 +308,80 @@ def load_mrclam(data_dir, robot: int, seconds: float | None = None) -> MrclamRun
         return loaded
     return replace(loaded, landmark_subjects=relabelled_survey(loaded.landmark_subjects, moves),
                    survey_relabelled=moves)
+
+
+# --------------------------------------------------------------------------- robot-to-robot reads
+
+#: Why robot-to-robot reads are left out, in the order the reasons are tested.
+READ_DROP_REASONS = ("before_odometry", "after_odometry", "own_barcode", "bad_range", "bad_bearing")
+
+
+@dataclass(frozen=True)
+class RobotReads:
+    """The robots' reads of each other's barcodes, n of them sorted by time then observer.
+
+    ``times`` (n,) s of the dataset clock; ``observer`` (n,) the reading robot, ``observed`` (n,)
+    the robot read (subjects 1-5); ``range`` (n,) m and ``bearing`` (n,) rad as the landmark
+    reads.  ``drops``: reads left out, by reason (READ_DROP_REASONS); ``truncated``: reads cut
+    by ``seconds``.
+    """
+
+    source: str
+    times: np.ndarray
+    observer: np.ndarray
+    observed: np.ndarray
+    range: np.ndarray
+    bearing: np.ndarray
+    drops: Counter = field(default_factory=Counter)
+    truncated: int = 0
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+
+def _reads_of(robot: int, rows: np.ndarray, name: str, table: np.ndarray, odometry: np.ndarray,
+              seconds: float | None, drops: Counter) -> tuple[np.ndarray, int]:
+    """The kept robot reads of one Measurement file as (k, 5) rows: time, observer, observed,
+    range, bearing; and how many ``seconds`` cut.  The landmark measurements' window and checks."""
+    if not np.isfinite(rows[:, 0]).all():
+        raise ValueError(f"{name}: non-finite time in data row {int(np.argmax(~np.isfinite(rows[:, 0]))) + 1}")
+    subjects = _barcode_subjects(rows[:, 1], table)
+    rows, subjects = rows[np.isin(subjects, ROBOTS)], subjects[np.isin(subjects, ROBOTS)]
+    t = rows[:, 0]
+    keep = t < _time_window(odometry[0], seconds)
+    truncated = int(np.count_nonzero(~keep))
+    with np.errstate(invalid="ignore"):
+        checks = {"before_odometry": t < odometry[0], "after_odometry": t > odometry[-1],
+                  "own_barcode": subjects == robot, "bad_range": ~(rows[:, 2] > 0) | ~np.isfinite(rows[:, 2]),
+                  "bad_bearing": ~np.isfinite(rows[:, 3])}
+    for reason in READ_DROP_REASONS:
+        hit = keep & checks[reason]
+        drops[reason] += int(np.count_nonzero(hit))
+        keep &= ~hit
+    kept = np.column_stack([t, np.full(len(t), robot), subjects, rows[:, 2], rows[:, 3]])[keep]
+    return kept, truncated
+
+
+def load_robot_reads(data_dir, robots=ROBOTS, seconds: float | None = None) -> RobotReads:
+    """The robot-to-robot barcode reads of ``robots`` (observers, 1-5) at ``data_dir`` (directory
+    or archive), each robot's within its odometry span and first ``seconds`` as :func:`load_mrclam`
+    keeps its landmark measurements."""
+    for robot in robots:
+        _check_arguments(robot, seconds)
+    names = [BARCODES] + [robot_files(int(r))[s] for r in robots for s in ("odometry", "measurement")]
+    source, texts = read_texts(data_dir, names)
+    barcodes = parse_table(BARCODES, texts[BARCODES], 2)
+    _require_finite(BARCODES, barcodes)
+    table = _require_integers(BARCODES, barcodes)
+    drops, truncated, parts = Counter({r: 0 for r in READ_DROP_REASONS}), 0, [np.zeros((0, 5))]
+    for robot in map(int, robots):
+        files, window = robot_files(robot), {"retimed": Counter(), "truncated": Counter()}
+        _odometry(parse_table(files["odometry"], texts[files["odometry"]], 3), files["odometry"], seconds, window)
+        kept, cut = _reads_of(robot, parse_table(files["measurement"], texts[files["measurement"]], 4),
+                              files["measurement"], table, window["odometry_times"], seconds, drops)
+        parts.append(kept)
+        truncated += cut
+    rows = np.concatenate(parts)
+    rows = rows[np.lexsort((rows[:, 1], rows[:, 0]))]
+    return RobotReads(source, rows[:, 0], rows[:, 1].astype(np.int64), rows[:, 2].astype(np.int64),
+                      rows[:, 3], rows[:, 4], drops, truncated)

@@ -19,7 +19,8 @@ The dataset's clock is shared by the robots; ``--seconds`` keeps the first S sec
 from each robot's first odometry sample (the same instant for every robot of a dataset).
 
 Robot-to-robot barcode reads (subjects 1-5) are not landmarks and are dropped, as in
-the single-robot bag; :func:`fleet_report_lines` counts them per robot.  The survey's
+the single-robot bag; :func:`fleet_report_lines` counts them per robot.  The fleet batch
+reads them from the dataset itself (:mod:`.fleet_batch`, ``--robot-reads``).  The survey's
 label correction (:mod:`.survey`) is found from every robot's measurements: the one
 correction the robots that find any agree on (the most common when they differ).
 """
