@@ -8,6 +8,12 @@ os.environ.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
 
 import pytest  # noqa: E402
 
+from ros_domain import claim  # noqa: E402
+
+# This test process's own domain: the multi-process tests turn discovery on (LOCALHOST), and
+# any other run on this host with the same domain would then publish into their nodes.
+os.environ["ROS_DOMAIN_ID"] = str(claim())
+
 # Tests that run live nodes against the wall clock (in this process or in others).  `make test`
 # runs them on their own after the others, which it runs on two workers: a live node's timing
 # tolerances hold on a machine that is not also filtering in another process.

@@ -6,12 +6,12 @@ the table of before and after."""
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
 import pytest
 
 from bad_bag_corpus import CASES, make_case
+from ros_domain import claim
 
 # case -> what the error line says (after the file name), for run and for the replay
 # (None: the case is a parameter file, which the replay does not read).
@@ -94,7 +94,7 @@ def ros_isolated(monkeypatch):
     """The replay's node in this process: no discovery beyond it, a domain of its own."""
     pytest.importorskip("rclpy")
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(200 + os.getpid() % 30))
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(claim()))
 
 
 def _summary(out: str) -> dict:

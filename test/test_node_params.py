@@ -11,6 +11,7 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "OFF"
 import pytest  # noqa: E402
 
 from online_em_slam.offline import cli  # noqa: E402
+from ros_domain import claim  # noqa: E402
 from online_em_slam.parameters.specs import ParameterError  # noqa: E402
 from online_em_slam.parameters.yaml_file import config_from_params  # noqa: E402
 
@@ -35,7 +36,7 @@ def test_run_refuses_a_misspelled_key_naming_the_nearest_one(tmp_path, capsys):
 def test_the_node_refuses_a_misspelled_key_with_one_error_line_and_status_1(tmp_path):
     params = tmp_path / "typo.yaml"
     params.write_text(TYPO)
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="OFF", ROS_DOMAIN_ID=str(100 + os.getpid() % 100),
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="OFF", ROS_DOMAIN_ID=str(claim()),
                RCUTILS_COLORIZED_OUTPUT="0")
     try:
         done = subprocess.run([sys.executable, "-m", "online_em_slam.ros.node", "--ros-args", "--params-file",

@@ -10,10 +10,10 @@ import time
 import numpy as np
 import pytest
 
-# One DDS domain per test run (multi-process test: discovery must stay on, see docs/ROS.md).
-DOMAIN_ID = str(60 + os.getpid() % 40)
-os.environ["ROS_DOMAIN_ID"] = DOMAIN_ID
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+from ros_domain import claim
+
+# Multi-process tests: discovery must stay on (docs/ROS.md), on a domain of this run's own.
+DOMAIN_ID = str(claim())
 
 rclpy = pytest.importorskip("rclpy")
 
@@ -90,7 +90,16 @@ def test_message_class_resolution():
     assert parse_wait(["/a:2", "/b"]) == {"/a": 2, "/b": 1}
 
 
-def test_replay_delivers_every_message(tmp_path):
+@pytest.fixture
+def discovery(monkeypatch) -> dict:
+    """Discovery on between this process and the replay's, on this run's own domain (set per
+    test: the in-process tests of other modules run without discovery); the replay's env."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", DOMAIN_ID)
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    return dict(os.environ)
+
+
+def test_replay_delivers_every_message(tmp_path, discovery):
     from geometry_msgs.msg import TwistStamped
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import PointCloud2
@@ -112,7 +121,7 @@ def test_replay_delivers_every_message(tmp_path):
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
 
-        env = dict(os.environ, ROS_DOMAIN_ID=DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+        env = discovery
         cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", "0", "--clock",
                "--wait-subscribers", "/control:1", "/landmark_observations:1", "/clock:1",
                "--wait-timeout", "15", "--quiet"]
@@ -203,7 +212,7 @@ def test_beacon_node_publishes_observations():
     assert np.all(cols["id"] == -1) and np.all(cols["range_std"] == 0)
 
 
-def test_replay_of_car_park_into_a_live_node_loses_nothing(tmp_path):
+def test_replay_of_car_park_into_a_live_node_loses_nothing(tmp_path, discovery):
     """The converted Car Park bag replayed (another process, rate 20) into the SLAM node:
     every input reaches the node, none is dropped, and the beacon map is right."""
     from sensor_msgs.msg import PointCloud2
@@ -243,7 +252,7 @@ def test_replay_of_car_park_into_a_live_node_loses_nothing(tmp_path):
         executor = EventsExecutor(context=context)
         executor.add_node(node)
         executor.add_node(sink)
-        env = dict(os.environ, ROS_DOMAIN_ID=DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+        env = discovery
         cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", "20",
                "--topics", "/control", "/odom", "/landmark_observations",
                "--wait-subscribers", "/control:1", "/odom:1", "/landmark_observations:1",
@@ -290,7 +299,7 @@ def test_a_replay_stopped_by_sigint_while_publishing_reports_valid_json(tmp_path
 
     bag = tmp_path / "small"
     write_small_bag(bag)
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="OFF", ROS_DOMAIN_ID=str(150 + os.getpid() % 50))
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="OFF", ROS_DOMAIN_ID=str(claim()))
     proc = subprocess.Popen([sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", "0.2"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     lines, publishing = [], threading.Event()

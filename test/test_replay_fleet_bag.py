@@ -9,6 +9,7 @@ from collections import Counter
 import pytest
 
 from bad_bag_corpus import BASE_TOPICS, _messages
+from ros_domain import claim
 
 
 def write_fleet_bag(path, robots=("/robot1", "/robot2"), wrong: dict | None = None, topics=BASE_TOPICS):
@@ -118,7 +119,7 @@ def test_sigint_while_waiting_for_acknowledgements_ends_with_the_summary(tmp_pat
     from online_em_slam.bag import replay
 
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(200 + os.getpid() % 30))
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(claim()))
 
     def interrupted(publishers, timeout, log):
         rclpy.shutdown()

@@ -101,7 +101,10 @@ def test_player_pause_freezes_bag_time():
 # --------------------------------------------------------------------------- live replay
 
 rclpy = pytest.importorskip("rclpy")
-DOMAIN_ID = 140 + os.getpid() % 40
+
+from ros_domain import claim  # noqa: E402
+
+DOMAIN_ID = claim()
 
 
 def test_live_replay_with_options(monkeypatch, tmp_path):

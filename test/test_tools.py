@@ -21,7 +21,9 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-DOMAIN_ID = 20 + os.getpid() % 40
+from ros_domain import claim  # noqa: E402
+
+DOMAIN_ID = claim()
 POSE_TOPIC = "/online_em_slam/pose"
 LANDMARKS_TOPIC = "/online_em_slam/landmarks"
 
