@@ -82,8 +82,8 @@ class NoiseLearningConfig:
                                           "have passed): a short run's estimate can be several times off.")
     replay_warmup: bool = param(True, doc="Once every learned quantity is in use, filter the warm-up's inputs "
                                 "again from the start with the learned noise (once; the pose may jump then).")
-    max_replay_inputs: int = param(100000, 0, 10 ** 7, doc="Inputs kept for the warm-up replay; a longer "
-                                   "warm-up is not replayed.")
+    max_replay_inputs: int = param(100000, 0, 10 ** 7, doc="Inputs kept for the warm-up replay (per robot "
+                                   "in fleet mode); a longer warm-up is not replayed.")
     motion_window: int = param(10, 1, 1000, doc="Filter steps over which the pose is predicted open loop for "
                                "the motion scale's statistic.")
     min_landmark_observations: int = param(5, 1, 10 ** 6, doc="Observations of landmarks seen fewer times (this "

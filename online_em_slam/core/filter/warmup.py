@@ -9,6 +9,13 @@ from the learned values and feeds the kept inputs again.  Once.
 from __future__ import annotations
 
 
+def learned_start(learner) -> tuple:
+    """What a noise learner restarts from in a replay (NoiseLearner.start_from's arguments):
+    the motion scales' estimates, not the ones in use, which move towards the estimates at a
+    bounded rate and would filter the replay's first steps at the start values."""
+    return learner.noise_config(), learner.scale_estimate, learner.gains_known(), learner.scales_estimate.copy()
+
+
 class WarmupReplay:
     """The inputs since the start (``inputs``, None once there is nothing to replay) and the replay.
 
@@ -44,16 +51,12 @@ class WarmupReplay:
         """Restart ``estimator`` (an :class:`OnlineEMSlam`) at the start and filter the kept
         inputs again, the noise learner starting from the learned values; the drop
         counts stay those of the first pass (the replayed inputs were counted already)."""
-        # The motion scales' estimates, not the ones in use: those move towards the
-        # estimates at a bounded rate and would filter the replay's first steps at the start values.
-        learner = estimator._noise
-        noise, scale, gains = learner.noise_config(), learner.scale_estimate, learner.gains_known()
-        scales = learner.scales_estimate.copy()
+        learned = learned_start(estimator._noise)
         inputs, drops = self.inputs, dict(estimator.drops)
         estimator.reset(*self.start)
         fresh = estimator._warmup
         fresh.discard()
-        estimator._noise.start_from(noise, scale, gains, scales)
+        estimator._noise.start_from(*learned)
         with estimator._noise.held():                   # the warm-up's values, learned from these inputs
             for method, stamp, value in inputs:
                 getattr(estimator, method)(stamp, value)

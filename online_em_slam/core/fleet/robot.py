@@ -12,6 +12,7 @@ import numpy as np
 
 from ..config import SlamConfig
 from ..filter.slam import OnlineEMSlam
+from ..filter.warmup import WarmupReplay
 from .shared_map import FleetLandmarkTable, RobotMStep
 
 
@@ -22,6 +23,7 @@ class FleetRobot(OnlineEMSlam):
                  m_step: RobotMStep) -> None:
         self.shared_table = table
         self.shared_m_step = m_step
+        self.fleet_warmup = WarmupReplay(False, 0, None)      # the fleet's, once it has made every robot
         super().__init__(config, initial_pose, stamp, m_step_factory=self._fleet_m_step)
 
     def _fleet_m_step(self, *_) -> RobotMStep:
@@ -39,11 +41,17 @@ class FleetRobot(OnlineEMSlam):
         """(3,) where the filter last restarted (:meth:`reset`'s pose, to which ``reset()`` returns)."""
         return self._initial_pose.copy()
 
-    def join_map(self, table: FleetLandmarkTable, m_step: RobotMStep, pose) -> None:
-        """The fleet replaced its map (FleetSlam.load_map): the filter restarts at ``pose`` (3,) on
-        ``table`` and ``m_step``, its time line kept, as a single robot's does when it loads a file."""
+    def join_map(self, table: FleetLandmarkTable, m_step: RobotMStep, pose, stamp: float | None) -> None:
+        """The fleet replaced its map: the filter restarts at ``pose`` (3,) on ``table`` and
+        ``m_step`` with its time line at ``stamp`` (its last stamp when the fleet loads a map
+        file, as a single robot's does; the start for the fleet's warm-up replay)."""
         self.shared_table, self.shared_m_step = table, m_step
-        self.reset(pose, self.last_stamp)
+        self.reset(pose, stamp)
+
+    def set_pose(self, pose, std=None) -> None:
+        """OnlineEMSlam.set_pose; the fleet's kept warm-up inputs no longer lead to this state."""
+        super().set_pose(pose, std)
+        self.fleet_warmup.discard()
 
     def start_new_pass(self, initial_pose=None, stamp: float | None = None) -> None:
         raise NotImplementedError("a fleet robot has no passes of its own: the map is the fleet's")

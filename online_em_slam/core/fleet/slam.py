@@ -25,6 +25,7 @@ from ..mapping import mapfile, persistence
 from ..types import LandmarkMap, Observations, PoseEstimate, StepReport
 from .robot import FleetRobot
 from .shared_map import FleetLandmarkTable, RobotMStep
+from .warmup import FleetWarmupReplay
 
 
 class FleetSlam:
@@ -34,11 +35,14 @@ class FleetSlam:
     single robot's ``initial_pose``).  Robot r's filter draws from ``filter.seed + r``.
 
     Not in fleet mode: the complete-data M-step (``em.m_step = complete``: its
-    statistics are smoothed over one robot's particles; a ValueError), and the
-    warm-up replay (``noise_learning.replay_warmup`` is turned off: replaying one
-    robot's warm-up would restart its filter but not the shared map, which holds the
-    first pass's factors already).
+    statistics are smoothed over one robot's particles; a ValueError).  The warm-up
+    replay (``noise_learning.replay_warmup``) is the fleet's, not each robot's: the
+    map and every robot restart once every robot's learned noise is in use
+    (warmup.py).
     """
+
+    #: Lists that only grow, which a rollback (pipeline/rollback.py) shares instead of copying.
+    append_only_lists = ("_warmup_log",)
 
     def __init__(self, config: SlamConfig | None = None, initial_poses=((0.0, 0.0, 0.0),),
                  stamp: float | None = None) -> None:
@@ -54,6 +58,16 @@ class FleetSlam:
         self._map = FleetLandmarkTable(clock=self._clock)
         self._robots = [FleetRobot(self._robot_config(r), poses[r], stamp, self._map, RobotMStep(self._m_step, r))
                         for r in range(poses.shape[0])]
+        replay = config.noise_learning.replay_warmup and bool(self._robots[0]._noise.learn)
+        self._start_stamp = stamp
+        self._warmup = FleetWarmupReplay(replay, config.noise_learning.max_replay_inputs * len(poses), poses.copy())
+        for robot in self._robots:
+            robot.fleet_warmup = self._warmup
+
+    @property
+    def _warmup_log(self) -> list | None:
+        """Every robot's inputs kept for the fleet's warm-up replay (None: none kept), owned by warmup.py."""
+        return self._warmup.inputs
 
     def _robot_config(self, robot: int) -> SlamConfig:
         seed = self.config.filter.seed
@@ -86,16 +100,26 @@ class FleetSlam:
     # ------------------------------------------------------------------ inputs
     def add_control(self, robot: int, stamp: float, control) -> bool:
         """Robot ``robot``'s control, valid from ``stamp`` on (OnlineEMSlam.add_control)."""
-        return self.robot(robot).add_control(stamp, control)
+        filter_ = self.robot(robot)
+        self._warmup.record("add_control", stamp, (robot, control))
+        return filter_.add_control(stamp, control)
 
     def add_odometry(self, robot: int, stamp: float, odom_pose) -> bool:
         """Robot ``robot``'s odometry-frame pose (OnlineEMSlam.add_odometry)."""
-        return self.robot(robot).add_odometry(stamp, odom_pose)
+        filter_ = self.robot(robot)
+        self._warmup.record("add_odometry", stamp, (robot, odom_pose))
+        return filter_.add_odometry(stamp, odom_pose)
 
     def add_observations(self, robot: int, stamp: float, observations: Observations) -> StepReport:
         """Robot ``robot``'s scan: one filter step of its filter, its segment's factors to the
-        shared map, the map solved at its segment end (OnlineEMSlam.add_observations)."""
-        return self.robot(robot).add_observations(stamp, observations)
+        shared map, the map solved at its segment end (OnlineEMSlam.add_observations); the
+        fleet's warm-up replay once it is due."""
+        filter_ = self.robot(robot)
+        self._warmup.record("add_observations", stamp, (robot, observations))
+        report = filter_.add_observations(stamp, observations)
+        if self._warmup.due(self._robots):
+            self._warmup.replay(self)
+        return report
 
     def set_pose(self, robot: int, pose, std=None) -> None:
         """Put robot ``robot`` at ``pose``: only its key pose restarts (OnlineEMSlam.set_pose)."""
@@ -145,10 +169,11 @@ class FleetSlam:
         poses = self._poses_after_load(loaded, restore_pose)
         snapshot = [(owner, dict(owner.__dict__)) for owner in (self, *self._robots)]
         try:
-            self._replace_map(poses)
+            self.restart_map(poses)
             persistence.restore_map(self._map, self._m_step, loaded)
             for robot, pose in zip(self._robots, poses):
                 robot.resume_from_file(loaded, pose if restore_pose else None)
+            self._warmup.discard()
         except BaseException:
             # Every change above rebinds attributes of the fleet or its robots (new table,
             # M-step and filter state), so the shallow copies put everything back.
@@ -165,13 +190,15 @@ class FleetSlam:
         poses[0] = persistence.saved_pose(loaded)
         return poses
 
-    def _replace_map(self, poses: np.ndarray) -> None:
+    def restart_map(self, poses: np.ndarray, from_start: bool = False) -> None:
         """An empty table and M-step with key poses ``poses`` (R, 3); every robot's filter restarts
-        on them at its pose."""
+        on them at its pose, its time line kept (``from_start``: at the fleet's start stamp, for
+        the warm-up replay)."""
         self._m_step = ObservedInformationEM(self.config, poses)
         self._map = FleetLandmarkTable(clock=self._clock)
         for r, robot in enumerate(self._robots):
-            robot.join_map(self._map, RobotMStep(self._m_step, r), poses[r])
+            robot.join_map(self._map, RobotMStep(self._m_step, r), poses[r],
+                           self._start_stamp if from_start else robot.last_stamp)
 
     def landmarks(self, confirmed_only: bool = False) -> LandmarkMap:
         """The fleet's map theta with covariances and observation counts (every robot's)."""

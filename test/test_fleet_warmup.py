@@ -1,0 +1,72 @@
+"""The fleet's warm-up replay (core/fleet/warmup.py): every robot's warm-up filtered again on a
+new map once every robot's learned noise is in use."""
+import numpy as np
+
+from online_em_slam.core import FleetSlam, OnlineEMSlam
+from online_em_slam.core.em.noise.learner import NoiseLearner
+from online_em_slam.experiments.simulation import ScenarioConfig, feed, fleet_scenarios, simulate, slam_config_for
+from test_fleet import _Robot, _run_fleet
+from test_noise_learning import PARTICLES, TRUTH, started_wrong
+
+
+def _learning(scenario, **learning):
+    return started_wrong(slam_config_for(scenario, num_particles=PARTICLES, seed=1), 3.0, **learning)
+
+
+def test_a_one_robot_fleet_replays_its_warmup_as_the_single_robot_does():
+    """The fleet's replay (new map, robot restarted, held learned values, the kept inputs again)
+    is the single robot's replay (filter/warmup.py), bit for bit, with one robot."""
+    scenario = simulate(ScenarioConfig(seed=2, n_steps=600, outlier_probability=0.1, **TRUTH))
+    config = _learning(scenario)
+    single = OnlineEMSlam(config, initial_pose=scenario.initial_pose, stamp=0.0)
+    for step in scenario.steps:
+        feed(single, step)
+    fleet = _run_fleet([scenario], config)
+    assert single.learned_noise()["warmup_replayed"] and fleet.robot(0).learned_noise()["warmup_replayed"]
+    assert fleet._warmup_log is None and fleet.drops == single.drops
+    a, b = single.landmarks(), fleet.landmarks()
+    for name in ("ids", "positions", "covariances", "n_obs", "confirmed"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert np.array_equal(single.particles()[0], fleet.particles(0)[0])
+    assert single.learned_noise() == fleet.robot(0).learned_noise()
+
+
+def test_the_fleet_replays_once_every_robot_has_its_learned_values_in_use(monkeypatch):
+    """Two robots: nothing is replayed while one robot still runs on configured values; then
+    once, every robot held at its learned values through the replay; drops counted once."""
+    scenarios = fleet_scenarios(ScenarioConfig(n_steps=600, seed=0, outlier_probability=0.1, **TRUTH), 2)
+    replays = []
+    replay = FleetSlam.restart_map
+
+    def recording(self, poses, from_start=False):
+        replays.append([self.robot(r)._noise.all_in_use for r in range(self.n_robots)] if from_start else None)
+        replay(self, poses, from_start)
+    monkeypatch.setattr(FleetSlam, "restart_map", recording)
+    held = []
+    update = NoiseLearner.update
+
+    def noting(self, *args, **kwargs):
+        update(self, *args, **kwargs)
+        held.append(self.holding)
+    monkeypatch.setattr(NoiseLearner, "update", noting)
+
+    fleet = _run_fleet(scenarios, _learning(scenarios[0]))
+    plain = _run_fleet(scenarios, _learning(scenarios[0], replay_warmup=False))
+    assert replays == [[True, True]]
+    assert all(fleet.robot(r).learned_noise()["warmup_replayed"] for r in range(2))
+    assert any(held) and not held[-1]
+    assert fleet.drops == plain.drops
+
+
+def test_a_robot_put_elsewhere_ends_the_fleets_replay():
+    """A pose set from outside (an initial-pose message, a relocalisation) means the kept inputs
+    no longer lead to the fleet's state: no replay, as for a single robot."""
+    scenarios = fleet_scenarios(ScenarioConfig(n_steps=600, seed=0, outlier_probability=0.1, **TRUTH), 2)
+    fleet = FleetSlam(_learning(scenarios[0]), [s.initial_pose for s in scenarios], stamp=0.0)
+    fleet.set_pose(1, scenarios[1].initial_pose)
+    assert fleet._warmup_log is None
+    for k in range(600):
+        for robot, scenario in enumerate(scenarios):
+            feed(_Robot(fleet, robot), scenario.steps[k])
+    assert not any(fleet.robot(r).learned_noise()["warmup_replayed"] for r in range(2))
+
