@@ -7,7 +7,6 @@ truth.  The figures over more seeds are in docs/RESULTS.md.
 """
 from __future__ import annotations
 
-import contextlib
 import copy
 import math
 from dataclasses import replace
@@ -632,7 +631,7 @@ def test_the_replay_starts_from_the_learned_motion_shape():
     """start_from takes motion_shape's group scales (clipped to the limits), and the warm-up
     replay hands it the estimates: the replay filters with the learned noise groups, not
     from the starting ones again."""
-    from online_em_slam.core.filter.warmup import WarmupReplay
+    from online_em_slam.core.filter.warmup import learned_start
     from online_em_slam.core.models.motion import RELATIVE_UNIT
 
     base = SlamConfig()
@@ -645,17 +644,10 @@ def test_the_replay_starts_from_the_learned_motion_shape():
     assert motion.sigma_speed == pytest.approx(2.0 * base.motion.sigma_speed)
     assert motion.sigma_steering_relative == pytest.approx(3.0 * RELATIVE_UNIT)
 
-    started = []
-    fresh = SimpleNamespace(start_from=lambda *args: started.append(args), held=contextlib.nullcontext)
-    estimator = SimpleNamespace(drops={}, _noise=SimpleNamespace(
-        noise_config=lambda: config.noise, scale_estimate=1.0, gains_known=lambda: np.ones(2),
-        scales_estimate=np.array([2.0, 0.5, 0.1, 3.0])))
-
-    def reset(*_):
-        estimator._noise, estimator._warmup = fresh, WarmupReplay(False, 10, (None, None))
-    estimator.reset = reset
-    WarmupReplay(True, 10, (np.zeros(3), None)).replay(estimator)
-    np.testing.assert_allclose(started[0][3], [2.0, 0.5, 0.1, 3.0])
+    # What the replay's learners start from (filter/warmup.py and fleet/warmup.py pass it to start_from).
+    first_pass = SimpleNamespace(noise_config=lambda: config.noise, scale_estimate=1.0,
+                                 gains_known=lambda: np.ones(2), scales_estimate=np.array([2.0, 0.5, 0.1, 3.0]))
+    np.testing.assert_allclose(learned_start(first_pass)[3], [2.0, 0.5, 0.1, 3.0])
 
 
 def test_no_replay_after_a_relocalisation_or_beyond_the_input_cap():

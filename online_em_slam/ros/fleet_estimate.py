@@ -27,6 +27,17 @@ class FleetEstimate:
         return self.fleet.config
 
     @property
+    def replay_in_slices(self) -> bool:
+        return self.fleet.replay_in_slices
+
+    @replay_in_slices.setter
+    def replay_in_slices(self, value: bool) -> None:
+        self.fleet.replay_in_slices = value
+
+    def advance_replay(self, max_inputs: int) -> bool:
+        return self.fleet.advance_replay(max_inputs)
+
+    @property
     def last_stamp(self) -> float | None:
         """The newest stamp any robot's filter has reached."""
         stamps = [self.fleet.robot(r).last_stamp for r in range(self.fleet.n_robots)]

@@ -65,6 +65,7 @@ from .qos import input_qos, latched_qos
 from .map_files import MapFiles
 from .services import Commands
 from .throttle import Throttle
+from . import warmup_replay
 
 __all__ = ["OnlineEmSlamNode", "input_qos", "latched_qos", "main"]
 
@@ -209,8 +210,11 @@ class OnlineEmSlamNode(LifecycleNode):
         """OnlineEMSlam; with ``robots`` (fleet mode) the FleetSlam of every robot, one map."""
         s = self.settings
         if s.robots:
-            return FleetEstimate(self.config, initial_poses(s), s.robots)
-        return OnlineEMSlam(self.config, initial_pose=s.initial_pose)
+            estimator = FleetEstimate(self.config, initial_poses(s), s.robots)
+        else:
+            estimator = OnlineEMSlam(self.config, initial_pose=s.initial_pose)
+        estimator.replay_in_slices = True        # fed between the inputs (warmup_replay.py)
+        return estimator
 
     @property
     def transform_kind(self) -> str:
@@ -247,6 +251,8 @@ class OnlineEmSlamNode(LifecycleNode):
         # Timers run on the steady clock: they rate-limit work, independent of sim time.
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._housekeeping_timer = self.create_timer(0.1, self.inputs.housekeeping, clock=self._steady)
+        replay = warmup_replay.WarmupReplayFeeder(self)
+        self._replay_timer = self.create_timer(warmup_replay.PERIOD, replay.tick, clock=self._steady)
         publish_map = self.inputs.publish_map if self.fleet_mode else self.outputs.publish_map
         self._map_timer = self.create_timer(s.map_publish_period, publish_map, clock=self._steady)
         self._diag_timer = self.create_timer(s.diagnostics_period, self.diagnostics.publish, clock=self._steady)
@@ -307,7 +313,7 @@ class OnlineEmSlamNode(LifecycleNode):
                 self._core_drops_carry.update(self._slam.drops)
                 self.config = self._pending_config
                 self._pending_config = None
-                self._slam = OnlineEMSlam(self.config, initial_pose=s.initial_pose)
+                self._slam = self._new_estimator()
             else:
                 self._slam.reset(initial_pose=s.initial_pose, stamp=None)
             self.inputs.pipeline.restart(self._slam, keep_inputs=keep_inputs)

@@ -70,6 +70,7 @@ class OnlineEMSlam:
         self.config = (config or SlamConfig()).validate()
         self._m_step_factory = m_step_factory or make_m_step
         self.drops: Counter[str] = Counter()
+        self.replay_in_slices = False       # a live node's choice: see advance_replay
         self.reset(initial_pose, stamp)
 
     # ------------------------------------------------------------------ state
@@ -118,7 +119,7 @@ class OnlineEMSlam:
         for name in ("count", "avg_stats", "avg_count"):
             saved[name] = np.zeros_like(saved[name])
         self.reset(initial_pose, stamp)
-        self._restore_map(saved)
+        persistence.restore_map(self._map, self._m_step, saved)
         self._warmup.discard()
 
     def set_pose(self, pose, std=None) -> None:
@@ -156,6 +157,12 @@ class OnlineEMSlam:
     @property
     def relocalising(self) -> bool:
         return self._relocalising
+
+    def advance_replay(self, max_inputs: int) -> bool:
+        """With ``replay_in_slices`` (a live node, which cannot stop for the whole warm-up replay):
+        feed the replay up to ``max_inputs`` kept inputs while this estimator goes on; it takes
+        over once it has every input (filter/warmup.py).  True while it is still catching up."""
+        return self._warmup.advance(self, max_inputs)
 
     def restart_time_line(self, pose, std=None) -> None:
         """A confirmed jump of the time line (a bag played in a loop, a clock set back):
@@ -239,7 +246,7 @@ class OnlineEMSlam:
         observations = self._valid_observations(observations, report)
         self._filter_step(observations, report)
         if self._warmup.due(self._noise):
-            self._warmup.replay(self)
+            self._warmup.replay(self, self.replay_in_slices)
         report.ess = self._ess
         report.duration = time.perf_counter() - started
         return report
@@ -448,10 +455,6 @@ class OnlineEMSlam:
         """What the map file holds: the landmark table and the M-step's per-landmark state."""
         return persistence.map_arrays(self._map, self._m_step)
 
-    def _restore_map(self, arrays: dict[str, np.ndarray]) -> None:
-        """Rebuild the landmark table and the M-step state from :meth:`_m_step_arrays` output."""
-        persistence.restore_map(self._map, self._m_step, arrays)
-
     def resume_from_file(self, loaded: dict[str, np.ndarray], relocalise_at=None) -> None:
         """After a map file's map is in (:meth:`load_map`, FleetSlam.load_map): its learned noise starts
         the learner (when learning is on and the mixture's size matches), the warm-up is forgotten and
@@ -468,11 +471,8 @@ class OnlineEMSlam:
             self.relocalise(relocalise_at)
 
     def save_map(self, path: str) -> None:
-        """Write map, statistics, counts and pose atomically (core/mapping/mapfile.py).
-
-        The values are validated first: a non-finite estimate never replaces a good
-        file.  The directory must exist (callers decide where files may be created).
-        """
+        """Write map, statistics, counts and pose atomically (core/mapping/mapfile.py), validated first
+        (a non-finite estimate never replaces a good file); the directory must exist."""
         data = self._m_step_arrays()
         data["pose"] = self.pose().mean
         data.update(self._noise.saved_values() or {})
@@ -491,7 +491,7 @@ class OnlineEMSlam:
         snapshot = dict(self.__dict__)
         try:
             self.reset(pose, self._input.last_stamp)
-            self._restore_map(loaded)
+            persistence.restore_map(self._map, self._m_step, loaded)
             self.resume_from_file(loaded, pose)
         except BaseException:
             self.__dict__.clear()

@@ -3,10 +3,22 @@
 The warm-up runs under the configured noise, and the map's frame set then would
 stay (docs/METHOD.md, "Noise learned online", warm-up replay).  :class:`WarmupReplay`
 keeps the estimator's inputs from its start; once every learned quantity is in
-use, it restarts the estimator at its initial pose, starts the noise learner
-from the learned values and feeds the kept inputs again.  Once.
+use, a new estimator starts at the initial pose, its noise learner from the
+learned values (held while the warm-up is filtered again), and is fed the kept
+inputs; once it has every input the estimator received, it becomes the estimator.
+Once.
+
+Offline the new estimator is fed everything at once, inside the input that made the
+replay due.  A live node cannot stop that long (a fleet's replay on MRCLAM is most
+of a minute), so it sets ``replay_in_slices`` on the estimator and feeds the replay
+a few inputs at a time between its inputs (``advance``); the estimator it publishes
+meanwhile goes on under the first pass.  Either way the replayed estimator sees the
+same inputs in the same order, so it is the same once it takes over.
 """
 from __future__ import annotations
+
+import copy
+from collections import Counter
 
 
 def learned_start(learner) -> tuple:
@@ -21,45 +33,90 @@ class WarmupReplay:
 
     ``inputs`` only grows while kept: a rollback (pipeline/rollback.py) shares the list
     instead of copying it (the estimator names it in ``append_only_lists``).
+    ``replaying``: the new estimator while it catches up (None before and after).
     """
 
-    def __init__(self, keep: bool, max_inputs: int, start: tuple) -> None:
+    def __init__(self, keep: bool, max_inputs: int, start) -> None:
         self.inputs: list | None = [] if keep else None
         self.max_inputs = max_inputs
-        self.start = start              # (initial pose, stamp) to restart at
+        self.start = start              # where the estimator restarts (see _restarted)
         self.replayed = False
+        self.replaying = None
+        self._fed = 0                   # kept inputs fed to ``replaying``
+        self._warmup_length = 0         # the inputs up to the one that made the replay due
 
     def record(self, method: str, stamp: float, value) -> None:
         """One input as the estimator received it (its method name, stamp and value)."""
         inputs = self.inputs
         if inputs is None:
             return
-        if len(inputs) >= self.max_inputs:
+        if len(inputs) >= self.max_inputs and self.replaying is None:
             self.inputs = None          # too long a warm-up to keep: no replay
             return
         inputs.append((method, stamp, value))
 
     def discard(self) -> None:
-        """The inputs so far no longer lead to the estimator's state: no replay."""
+        """The inputs so far no longer lead to the estimator's state: no replay (or no more)."""
         self.inputs = None
+        self.replaying = None
 
     def due(self, learner) -> bool:
-        """Inputs are kept and every quantity the noise learner learns is in use."""
-        return self.inputs is not None and learner.all_in_use
+        """Inputs are kept, no replay runs, and every quantity the noise learner learns is in use."""
+        return self.inputs is not None and self.replaying is None and learner.all_in_use
 
-    def replay(self, estimator) -> None:
-        """Restart ``estimator`` (an :class:`OnlineEMSlam`) at the start and filter the kept
-        inputs again, the noise learner starting from the learned values; the drop
-        counts stay those of the first pass (the replayed inputs were counted already)."""
+    def replay(self, estimator, in_slices: bool = False) -> None:
+        """Start the replay for ``estimator``: all of it now, or (``in_slices``) in :meth:`advance`."""
+        self.replaying = self._restarted(estimator)
+        self._fed, self._warmup_length = 0, len(self.inputs)
+        if not in_slices:
+            self.advance(estimator)
+
+    def advance(self, estimator, max_inputs: int | None = None) -> bool:
+        """Feed the replay up to ``max_inputs`` kept inputs (None: all); once it has every input,
+        it becomes ``estimator``.  True while it is still catching up."""
+        replaying = self.replaying
+        if replaying is None:
+            return False
+        end = len(self.inputs) if max_inputs is None else min(len(self.inputs), self._fed + max_inputs)
+        for method, stamp, value in self.inputs[self._fed:end]:
+            self._feed(replaying, method, stamp, value)
+            self._fed += 1
+            if self._fed == self._warmup_length:
+                # The warm-up's values were learned from these inputs; later ones teach again.
+                for learner in self._learners(replaying):
+                    learner.holding = False
+        if self._fed < len(self.inputs):
+            return True
+        self._take_over(estimator, replaying)
+        return False
+
+    # ------------------------------------------------------------------ the estimator's kind
+    # A single robot (OnlineEMSlam); core/fleet/warmup.py has the fleet's.
+    def _restarted(self, estimator):
+        """A new estimator of ``estimator``'s configuration at the start, its learner started
+        from and held at the learned values, keeping no inputs of its own."""
         learned = learned_start(estimator._noise)
-        inputs, drops = self.inputs, dict(estimator.drops)
-        estimator.reset(*self.start)
-        fresh = estimator._warmup
-        fresh.discard()
-        estimator._noise.start_from(*learned)
-        with estimator._noise.held():                   # the warm-up's values, learned from these inputs
-            for method, stamp, value in inputs:
-                getattr(estimator, method)(stamp, value)
-        estimator.drops.clear()
-        estimator.drops.update(drops)
-        fresh.replayed = True
+        fresh = copy.copy(estimator)        # the configuration shared; reset rebinds every state
+        fresh.drops = Counter()
+        fresh.reset(*self.start)
+        fresh._warmup.discard()
+        fresh._noise.start_from(*learned)
+        fresh._noise.holding = True
+        return fresh
+
+    @staticmethod
+    def _learners(estimator) -> list:
+        return [estimator._noise]
+
+    @staticmethod
+    def _feed(estimator, method: str, stamp: float, value) -> None:
+        getattr(estimator, method)(stamp, value)
+
+    def _take_over(self, estimator, replayed) -> None:
+        """``replayed`` becomes ``estimator`` (the same object: whoever holds it goes on with it);
+        the drop counts stay the estimator's, which counted every input once."""
+        drops = estimator.drops
+        estimator.__dict__.clear()
+        estimator.__dict__.update(replayed.__dict__)
+        estimator.drops = drops
+        estimator._warmup.replayed = True

@@ -26,6 +26,14 @@ class FleetRobot(OnlineEMSlam):
         self.fleet_warmup = WarmupReplay(False, 0, None)      # the fleet's, once it has made every robot
         super().__init__(config, initial_pose, stamp, m_step_factory=self._fleet_m_step)
 
+    def __copy__(self) -> "FleetRobot":
+        """A shallow copy (the fleet's warm-up replay) whose M-step factory is its own bound method,
+        not the original's."""
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        new._m_step_factory = new._fleet_m_step
+        return new
+
     def _fleet_m_step(self, *_) -> RobotMStep:
         # A bound method, not a closure: a rollback's deep copy (pipeline/rollback.py) copies it
         # with the robot, so a reset after a restore still takes the fleet's current M-step.

@@ -60,6 +60,7 @@ class FleetSlam:
                         for r in range(poses.shape[0])]
         replay = config.noise_learning.replay_warmup and bool(self._robots[0]._noise.learn)
         self._start_stamp = stamp
+        self.replay_in_slices = False       # a live node's choice (OnlineEMSlam.replay_in_slices)
         self._warmup = FleetWarmupReplay(replay, config.noise_learning.max_replay_inputs * len(poses), poses.copy())
         for robot in self._robots:
             robot.fleet_warmup = self._warmup
@@ -118,8 +119,13 @@ class FleetSlam:
         self._warmup.record("add_observations", stamp, (robot, observations))
         report = filter_.add_observations(stamp, observations)
         if self._warmup.due(self._robots):
-            self._warmup.replay(self)
+            self._warmup.replay(self, self.replay_in_slices)
         return report
+
+    def advance_replay(self, max_inputs: int) -> bool:
+        """With ``replay_in_slices``: feed the warm-up replay up to ``max_inputs`` inputs
+        (OnlineEMSlam.advance_replay); True while it is still catching up."""
+        return self._warmup.advance(self, max_inputs)
 
     def set_pose(self, robot: int, pose, std=None) -> None:
         """Put robot ``robot`` at ``pose``: only its key pose restarts (OnlineEMSlam.set_pose)."""

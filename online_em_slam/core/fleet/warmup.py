@@ -4,14 +4,15 @@ again, on a new map, once every robot's learned noise is in use.
 A single robot replays its own warm-up (filter/warmup.py).  A fleet robot cannot: its
 first pass's factors are in the shared map already, and restarting its filter alone
 would count its warm-up twice.  So the fleet keeps the inputs of all robots in the order
-it received them; once every robot's noise learner has every learned value in use, the
-map and every robot's filter restart at the robots' start poses, each learner starts from
-its learned values, held through the replay (NoiseLearner.held), and the kept inputs are
-fed again in their order.  Once.
+it received them; once every robot's noise learner has every learned value in use, a new
+fleet starts (an empty map, every robot at its start pose), each learner from its
+learned values, held through the warm-up, and is fed the kept inputs in their order
+(all at once, or in slices as filter/warmup.py describes) until it takes over.  Once.
 """
 from __future__ import annotations
 
-from contextlib import ExitStack
+import copy
+from collections import Counter
 
 from ..filter.warmup import WarmupReplay, learned_start
 
@@ -21,26 +22,37 @@ class FleetWarmupReplay(WarmupReplay):
     replay.  ``start`` is the robots' start poses (R, 3)."""
 
     def due(self, robots) -> bool:
-        """Inputs are kept and every robot's learner has every learned quantity in use."""
-        return self.inputs is not None and all(robot._noise.all_in_use for robot in robots)
+        """Inputs are kept, no replay runs, and every robot's learner has every learned quantity in use."""
+        return self.inputs is not None and self.replaying is None and all(r._noise.all_in_use for r in robots)
 
-    def replay(self, fleet) -> None:
-        """Restart ``fleet``'s map and robots at the start and feed the kept inputs again, each
-        robot's learner starting from, and held at, its learned values; the drop counts stay
-        the first pass's (the replayed inputs were counted already)."""
-        robots = [fleet.robot(r) for r in range(fleet.n_robots)]
-        learned = [learned_start(robot._noise) for robot in robots]
-        drops = [dict(robot.drops) for robot in robots]
-        inputs, self.inputs = self.inputs, None
-        fleet.restart_map(self.start, from_start=True)
-        with ExitStack() as held:
-            for robot, values in zip(robots, learned):
-                robot._noise.start_from(*values)
-                held.enter_context(robot._noise.held())
-            for method, stamp, (r, value) in inputs:
-                getattr(robots[r], method)(stamp, value)
-        for robot, counts in zip(robots, drops):
-            robot.drops.clear()
-            robot.drops.update(counts)
+    def _restarted(self, fleet):
+        learned = [learned_start(robot._noise) for robot in fleet._robots]
+        fresh = copy.copy(fleet)            # the configuration shared; restart_map rebinds the map
+        fresh._robots = [copy.copy(robot) for robot in fleet._robots]
+        fresh._warmup = FleetWarmupReplay(False, 0, self.start)
+        for robot, values in zip(fresh._robots, learned):
+            robot.drops = Counter()
+            robot.fleet_warmup = fresh._warmup
+        fresh.restart_map(self.start, from_start=True)       # every robot's filter reset on it
+        for robot, values in zip(fresh._robots, learned):
+            robot._noise.start_from(*values)
+            robot._noise.holding = True
+        return fresh
+
+    @staticmethod
+    def _learners(fleet) -> list:
+        return [robot._noise for robot in fleet._robots]
+
+    @staticmethod
+    def _feed(fleet, method: str, stamp: float, value) -> None:
+        robot, value = value
+        getattr(fleet, method)(robot, stamp, value)
+
+    def _take_over(self, fleet, replayed) -> None:
+        drops = [robot.drops for robot in fleet._robots]
+        fleet.__dict__.clear()
+        fleet.__dict__.update(replayed.__dict__)
+        for robot, counts in zip(fleet._robots, drops):
+            robot.drops = counts
             robot._warmup.replayed = True          # reported per robot (learned_noise)
-        self.replayed = True
+        fleet._warmup.replayed = True
