@@ -57,8 +57,13 @@ def _group_sums(index: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.n
 
     Each sum is np.add.reduce of a contiguous run of a row: numpy's pairwise summation of
     the group's values in their order, so sum / size is bit for bit np.mean of the group.
+    A scan's few observations are mostly each in a bin of its own: then each sum is
+    np.add.reduce's of one value, 0 + the value, made for all at once.
     """
-    starts = [0, *(np.flatnonzero(index[1:] != index[:-1]) + 1).tolist()]
+    breaks = index[1:] != index[:-1]
+    if breaks.all():
+        return index, np.ones(index.size, dtype=np.int64), values.T + 0.0
+    starts = [0, *(np.flatnonzero(breaks) + 1).tolist()]
     ends = starts[1:] + [index.size]
     sums = np.array([np.add.reduce(values[:, s:e], axis=1) for s, e in zip(starts, ends)])
     return index[starts], np.subtract(ends, starts), sums
