@@ -25,7 +25,10 @@ def batch_step_size(count: float, batch: int, alpha: float) -> float:
 
 def batch_step_sizes(counts: np.ndarray, batches: np.ndarray, alpha: float) -> np.ndarray:
     """:func:`batch_step_size` of several averages at once (K,): the rows' factors padded with 1
-    (a product's exact no-op) and multiplied left to right, as the one-row product is."""
+    (a product's exact no-op) and multiplied left to right, as the one-row product is.  One
+    update each (a scan's observations in bins of their own): the product is its one factor."""
+    if (batches == 1).all():
+        return 1.0 - (1.0 - (counts + 1.0) ** -alpha)
     n = counts[:, None] + np.arange(1, batches.max() + 1, dtype=float)                # (K, max batch)
     factors = np.where(n <= (counts + batches)[:, None], 1.0 - n ** -alpha, 1.0)
     return 1.0 - np.multiply.reduce(factors, axis=1)                                 # np.prod's reduction

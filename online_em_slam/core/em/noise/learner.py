@@ -83,6 +83,7 @@ class NoiseLearner:
         if config.noise.model != "student_t":
             learn.discard("dof")
         self.learn = learn
+        self._tails = bool(learn & {"mixture", "dof"})   # the tail statistics' M-steps run
         self.observations = StochasticAverage(self.settings.step_size_exponent)
         self.serial = StochasticAverage(self.settings.step_size_exponent)    # consecutive innovations' moments
         self._previous = PreviousInnovations()
@@ -277,7 +278,7 @@ class NoiseLearner:
         if self.learn & OBSERVATION_QUANTITIES and data.rows.size:
             # Latent variables under the latest estimate (the E-step of online EM runs at the
             # current parameter, also while the filter still warms up).
-            statistics = observation_statistics(self.estimate, data.weights, used)
+            statistics = observation_statistics(self.estimate, data.weights, used, self._tails)
             if statistics is not None:
                 sample, ranges, squared = statistics
                 self.observations.blend(sample, ranges.size)

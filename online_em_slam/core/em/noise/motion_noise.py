@@ -104,12 +104,15 @@ def compound(steps: MotionSteps, Phi: np.ndarray | None = None) -> tuple[np.ndar
 def transitions(F: np.ndarray) -> np.ndarray:
     """Phi (L + 1, 3, 3) of Jacobians F (L, 3, 3): Phi[k + 1] = Phi(t, k) = F_{L-1} ... F_{k+1} of
     step k, Phi[0] the whole window's; built from the end backwards, one 3x3 product per step
-    (the same products in the same order as one step at a time)."""
+    (the same products in the same order as one step at a time).  np.dot into ``out``: the
+    same BLAS call as matmul for two matrices, with less of numpy's overhead per call, which
+    is what L products of 3x3 matrices cost."""
     L = F.shape[0]
     Phi = np.empty((L + 1, 3, 3))
     Phi[L] = np.eye(3)
+    products, factors = list(Phi), list(F)                # each matrix's view, made once
     for k in range(L - 1, -1, -1):
-        np.matmul(Phi[k + 1], F[k], out=Phi[k])
+        np.dot(products[k + 1], factors[k], out=products[k])
     return Phi
 
 

@@ -161,10 +161,15 @@ class UsedObservations:
 
 
 
-def observation_statistics(noise: ObservationNoiseConfig, weights: np.ndarray, used: UsedObservations | None):
+def observation_statistics(noise: ObservationNoiseConfig, weights: np.ndarray, used: UsedObservations | None,
+                           tails: bool = True):
     """(the step's mean of [E_bb, rho term, tail statistics], ranges, E_rr), from (E), over the
     ``used`` observations (landmarks seen often enough, the configured R), with the latent
-    variables under ``noise`` (None when nothing is used or a statistic is not finite)."""
+    variables under ``noise`` (None when nothing is used or a statistic is not finite).
+
+    ``tails`` False leaves the tail statistics out (the learner learns neither the mixture nor
+    the dof): they are most of the statistics' cost and their M-step would not run.
+    """
     if used is None:
         return None
     ranges, nu, R, w = used.ranges, used.nu, used.R, weights
@@ -172,9 +177,10 @@ def observation_statistics(noise: ObservationNoiseConfig, weights: np.ndarray, u
     outer = nu[..., :, None] * nu[..., None, :] * map_share(used.n_obs)[:, None, None]
     E = np.einsum("n,np,npij->pij", w, component_precision_weight(noise, latent), outer)  # (E), (P, 2, 2)
     a, b = noise.sigma_range, noise.range_growth
-    sample = np.concatenate([
-        [mean(E[:, 1, 1]), mean(a * E[:, 0, 1] / (a + b * ranges))],     # rho scales with sigma_r(r)
-        tail_statistics(noise, w, latent, outer, R, d2)])
+    parts = [[mean(E[:, 1, 1]), mean(a * E[:, 0, 1] / (a + b * ranges))]]     # rho scales with sigma_r(r)
+    if tails:
+        parts.append(tail_statistics(noise, w, latent, outer, R, d2))
+    sample = np.concatenate(parts)
     if not (np.isfinite(sample).all() and np.isfinite(E[:, 0, 0]).all()):
         return None
     return sample, ranges, E[:, 0, 0]

@@ -57,8 +57,13 @@ def _group_sums(index: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.n
 
     Each sum is np.add.reduce of a contiguous run of a row: numpy's pairwise summation of
     the group's values in their order, so sum / size is bit for bit np.mean of the group.
+    A scan's few observations are mostly each in a bin of its own: then each sum is
+    np.add.reduce's of one value, 0 + the value, made for all at once.
     """
-    starts = [0, *(np.flatnonzero(index[1:] != index[:-1]) + 1).tolist()]
+    breaks = index[1:] != index[:-1]
+    if breaks.all():
+        return index, np.ones(index.size, dtype=np.int64), values.T + 0.0
+    starts = [0, *(np.flatnonzero(breaks) + 1).tolist()]
     ends = starts[1:] + [index.size]
     sums = np.array([np.add.reduce(values[:, s:e], axis=1) for s, e in zip(starts, ends)])
     return index[starts], np.subtract(ends, starts), sums
@@ -75,19 +80,18 @@ def range_noise_fit(counts: np.ndarray, means: np.ndarray, a: float, b: float, f
     reweighted: its fixed point is the maximum-likelihood one).  Each iteration
     evaluates v_j once: the accepted trial's is the next iteration's.
     """
-    free = np.array(free, dtype=bool)
-    if counts.size == 0 or not free.any():
+    if counts.size == 0 or not any(free):
         return a, b
-    r, r2, e2 = means[:, 0], means[:, 1], means[:, 2]
+    r, r2, e2 = means.T.copy()                           # contiguous rows: numpy's faster loops
     params = (float(a), float(b))                         # Python floats: the same IEEE arithmetic, no arrays
     variance = _range_variance(r, r2, params)
     for _ in range(iterations):
         weights = counts / np.maximum(variance, 1e-300) ** 2
         rho = variance - e2
-        cost = float(weights @ rho ** 2)
         step = _gauss_newton_step(r, r2, rho, weights, params, free)
         if all(abs(d) <= 1e-9 * abs(p) + 1e-15 for d, p in zip(step, params)):
             break                                         # converged (the averages move slowly)
+        cost = float(weights @ rho ** 2)                  # only a step to take needs it
         for _ in range(10):                               # backtrack: keep the cost decreasing
             trial = (params[0] + step[0], params[1] + step[1])
             if trial[0] > 0 and trial[1] >= 0:
@@ -108,30 +112,29 @@ def _range_variance(r: np.ndarray, r2: np.ndarray, params: tuple[float, float]) 
 
 
 def _gauss_newton_step(r: np.ndarray, r2: np.ndarray, rho: np.ndarray, weights: np.ndarray,
-                       params: tuple[float, float], free: np.ndarray) -> list[float]:
+                       params: tuple[float, float], free: tuple[bool, bool]) -> list[float]:
     """-(J^T W J)^-1 J^T W rho on the free parameters (2,), rho the residuals (K,);
     J_j = 2 (a + b E[r], a E[r] + b E[r^2]) (K, 2), only its free columns made.
 
-    One free parameter: LAPACK's solve of one equation is the division, done in floats.
+    One free parameter (the usual case: sigma_range alone): J^T W J and J^T W rho are two
+    dot products (the BLAS call a (1, K) x (K, 1) product makes) and LAPACK's solve of one
+    equation is the division, done in floats.
     """
     a, b = params
-    halves = []                                    # J's free columns / 2
-    if free[0]:
-        halves.append(a + b * r)
-    if free[1]:
-        halves.append(a * r + b * r2)
-    J = (2.0 * np.array(halves)).T                 # (K, m): J^T's rows contiguous, as BLAS had them
+    if free[0] != free[1]:
+        j = 2.0 * (a + b * r if free[0] else a * r + b * r2)
+        gram, gradient = float(j @ (weights * j)), float(j @ (weights * rho))
+        ridge = 1e-12 * max(gram, 1e-300)         # all observations in one bin: b is not identified
+        try:
+            value = gradient / (gram + ridge)
+        except ZeroDivisionError:
+            return [0.0, 0.0]
+        return [-value, 0.0] if free[0] else [0.0, -value]
+    J = (2.0 * np.array([a + b * r, a * r + b * r2])).T      # (K, 2): J^T's rows contiguous, as BLAS had them
     G = J.T @ (weights[:, None] * J)
-    ridge = 1e-12 * max(G.trace(), 1e-300)       # all observations in one bin: b is not identified
-    gradient = J.T @ (weights * rho)
-    step = [0.0, 0.0]
+    ridge = 1e-12 * max(G.trace(), 1e-300)
     try:
-        if J.shape[1] == 1:
-            solution = [float(gradient[0]) / (float(G[0, 0]) + ridge)]
-        else:
-            solution = np.linalg.solve(G + ridge * np.eye(2), gradient).tolist()
-    except (np.linalg.LinAlgError, ZeroDivisionError):
-        return step
-    for index, value in zip([i for i in (0, 1) if free[i]], solution):
-        step[index] = -value
-    return step
+        solution = np.linalg.solve(G + ridge * np.eye(2), J.T @ (weights * rho))
+    except np.linalg.LinAlgError:
+        return [0.0, 0.0]
+    return [-float(solution[0]), -float(solution[1])]
