@@ -128,3 +128,31 @@ def test_sigint_while_waiting_for_acknowledgements_ends_with_the_summary(tmp_pat
     code = replay.main([str(write_fleet_bag(tmp_path / "fleet")), "--rate", "0", "--quiet"])
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert code == 130 and summary["interrupted"] and summary["total"] > 0
+
+
+@pytest.mark.live
+def test_sigint_while_publishing_ends_with_the_summary(tmp_path, capsys, monkeypatch):
+    """The same inside a publish (seen once in CI: 'Failed to publish: publisher's context is
+    invalid' with a traceback and status 1)."""
+    pytest.importorskip("rclpy")
+    import json
+
+    import rclpy
+
+    from online_em_slam.bag import replay
+
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(claim()))
+    published = []
+
+    def publish(publisher, raw, timeout):
+        if len(published) == 5:
+            rclpy.shutdown()
+            raise RuntimeError("Failed to publish: publisher's context is invalid")
+        published.append(raw)
+        return 0.0, 0
+    monkeypatch.setattr(replay, "publish_waiting", publish)
+    code = replay.main([str(write_fleet_bag(tmp_path / "fleet")), "--rate", "0", "--quiet"])
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert code == 130 and summary["interrupted"] and summary["total"] == 5
+    assert summary["wall_seconds"] is not None

@@ -330,18 +330,20 @@ def _main(argv=None) -> int:
             if args.start_delay > 0:
                 time.sleep(args.start_delay)
             elapsed = _play(args, reader, conns, node, publishers, counts, log, blocked)
-            try:
-                acked = _acknowledged(publishers, args.ack_timeout, log)
-            except RuntimeError:              # SIGINT while waiting: rclpy shut the context down
-                if rclpy.ok():
-                    raise
-                exit_code = 130
+            acked = _acknowledged(publishers, args.ack_timeout, log)
     except KeyboardInterrupt:
         exit_code = 130
         elapsed = time.monotonic() - started       # stopped: the wall time until then
     except (BagError, PublishError) as error:     # the bag went bad while playing; a subscriber stopped
         print(f"online-em-slam-replay: error: {error}", file=sys.stderr)
         exit_code = 1
+    except RuntimeError:
+        # SIGINT inside an rclpy call (a publish, the wait for acknowledgements): rclpy's handler
+        # shuts the context down first, and the call fails on it instead of being interrupted.
+        if rclpy.ok():
+            raise
+        exit_code = 130
+        elapsed = time.monotonic() - started
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
