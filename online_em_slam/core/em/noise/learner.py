@@ -32,7 +32,6 @@ uncertainty, so most of its information is missing).
 from __future__ import annotations
 
 import math
-from contextlib import contextmanager
 from dataclasses import replace
 
 import numpy as np
@@ -115,7 +114,14 @@ class NoiseLearner:
         self._parts_config = (None, None)
         self._start = config.noise                       # in use until warm: configured, or restored
         self._in_use = config.noise
-        self.holding = False                             # held(): the statistics gather, the values in use stay
+        # While holding, every value in use stays as it is (observation noise, motion scales,
+        # gains) and the statistics gather as usual; after, the estimates take over as they are
+        # warm.  The warm-up replay (filter/warmup.py) holds the values learned from the warm-up
+        # while it filters the warm-up again: learned again from those same observations,
+        # restarted from a few, the noise would be counted twice and, against a map fitted to
+        # those few under a narrow R, fall below the first pass's estimate (MRCLAM D1 R3:
+        # sigma_range 0.11 -> 0.06 m within the replay).
+        self.holding = False
 
     def start_from(self, noise: ObservationNoiseConfig, motion_scale: float, motion_gains=None,
                    motion_scales=None) -> None:
@@ -137,20 +143,6 @@ class NoiseLearner:
         if self.gains is not None and motion_gains is not None:
             self.gains_in_use = np.clip(np.asarray(motion_gains, dtype=float), *self.settings.motion_gain_limits)
             self.gains_estimate = self.gains_in_use.copy()
-
-    @contextmanager
-    def held(self):
-        """While inside, every value in use stays as it is (observation noise, motion scales,
-        gains) and the statistics gather as usual; after, the estimates take over as they are
-        warm.  The warm-up replay filters the warm-up again under the values learned from it:
-        learned again from those same observations, restarted from a few, the noise would be
-        counted twice and, against a map fitted to those few under a narrow R, fall below the
-        first pass's estimate (MRCLAM D1 R3: sigma_range 0.11 -> 0.06 m within the replay)."""
-        self.holding = True
-        try:
-            yield self
-        finally:
-            self.holding = False
 
     def saved_values(self) -> dict[str, np.ndarray] | None:
         """The values in use for a map file (None when nothing is learned)."""
