@@ -12,6 +12,8 @@ particles so that the next factors are linearised where the pose now is.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..config import SlamConfig
@@ -19,6 +21,7 @@ from .step import FilterStepData
 from ..mapping.landmarks import LandmarkTable
 from ..models.observation import inv_det_2x2, landmark_jacobian, sensor_poses
 from .observed_information import POSE_DIM, ObservedInformation, StepFactors, motion_residual
+from .segment_message import SegmentMessage
 from .statistics import STAT_DIM, unpack
 
 # Under heavy-tailed noise a landmark's first observation cannot be checked against anything:
@@ -46,6 +49,11 @@ class ObservedInformationEM:
         self.block_index = 1
         self.block_end = config.em.block_initial_length
         self.failed_solves = 0
+        # Sharing with other nodes (segment_message.py): None, or the messages of this node's
+        # segments not yet taken; the sequence numbers sent and received per robot.
+        self.outbox: list[SegmentMessage] | None = None
+        self._sent: dict[int, int] = {}
+        self._received: dict[int, int] = {}
 
     def add_landmarks(self, count: int) -> None:
         self.system.add_landmarks(count)
@@ -63,7 +71,7 @@ class ObservedInformationEM:
         self.system.add_step(self._step_factors(data, table), robot)
         if not self._segment_ends(data.step, robot):
             return None
-        self.system.close_segment(table.theta, robot)
+        self._send(self.system.close_segment(table.theta, robot), table, robot)
         if not self._solve_now(data.step):
             return None
         solution = self.system.solve()
@@ -116,8 +124,44 @@ class ObservedInformationEM:
         """The filter (of ``robot``) was re-initialised at ``pose``: fold its open segment in,
         then restart its key pose without a motion link (ObservedInformation.restart_key).
         The replaced particles' ``weights`` do not matter: the segment holds the mean pose."""
-        self.system.close_segment(table.theta, robot)
+        self._send(self.system.close_segment(table.theta, robot), table, robot)
         self.system.restart_key(pose, pose_std, robot)
+        if self.outbox is not None:
+            self._sent[robot] = self._sent.get(robot, 0) + 1
+            self.outbox.append(SegmentMessage(robot, self._sent[robot], None, np.zeros(0, dtype=np.int64),
+                                              np.zeros((0, 2)), np.array(pose, dtype=float),
+                                              np.array(pose_std, dtype=float)))
+
+    # ------------------------------------------------------------ other nodes
+    def _send(self, segment, table: LandmarkTable, robot: int) -> None:
+        if self.outbox is None or segment is None:
+            return
+        self._sent[robot] = self._sent.get(robot, 0) + 1
+        self.outbox.append(SegmentMessage(robot, self._sent[robot], segment, table.ids[segment.seen].copy(),
+                                          table.theta[segment.seen].copy()))
+
+    def fold_remote(self, message: SegmentMessage, rows: np.ndarray, table: LandmarkTable) -> None:
+        """Another node's segment of ``message.robot`` (``rows`` (S,): its landmarks' rows here):
+        folded against that robot's key block, the map solved (its own robots' corrections stay
+        in the system until their own segment ends, as in a fleet).
+
+        A lost message (a gap in the robot's sequence) loses the motion between the keys on
+        either side of it: the robot's key block restarts with the relocalisation prior at the
+        next segment's key point, so the system stays a product of true factors (consistent),
+        and only the link across the gap, and the gap's observations, are missing."""
+        robot = message.robot
+        if message.sequence != self._received.get(robot, 0) + 1 and message.segment is not None:
+            self.system.restart_key(message.segment.key, self.config.filter.relocalisation_std, robot)
+        self._received[robot] = message.sequence
+        if message.segment is None:
+            self.system.restart_key(message.pose, message.pose_std, robot)
+            return
+        self.system.fold(replace(message.segment, seen=rows), robot)
+        solution = self.system.solve()
+        if solution is None:
+            self.failed_solves += 1
+            return
+        table.theta[:] = solution[0]
 
     # ------------------------------------------------------------ uncertainty
     def covariances(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:

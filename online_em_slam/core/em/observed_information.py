@@ -65,6 +65,29 @@ class StepFactors:
     precision: np.ndarray
 
 
+@dataclass
+class SegmentSystem:
+    """A robot's segment as one factor, before it is folded into the stored system.
+
+    ``local`` (n, n) and ``vector`` (n,): the segment's motion and observation factors over
+    [dx_key, dx_1 .. dx_K, theta_S], n = 3 (K + 1) + 2 S, without the stored key block;
+    ``key`` (3,) the key pose's linearisation point they were built at, ``pose`` (3,) x_K's
+    (the next key), ``seen`` (S,) the rows of theta_S.  The landmarks are in absolute
+    coordinates, so the factor holds for any map estimate; only the key's point matters
+    (ObservedInformation.fold re-expresses it)."""
+
+    local: np.ndarray
+    vector: np.ndarray
+    key: np.ndarray
+    pose: np.ndarray
+    seen: np.ndarray
+    counts: np.ndarray      # (S,) observations of each landmark in the segment
+
+    @property
+    def steps(self) -> int:
+        return (self.local.shape[0] - 2 * self.seen.size) // POSE_DIM - 1
+
+
 class ObservedInformation:
     """Information form over [dx_key_1 .. dx_key_R; theta] plus each robot's open segment.
 
@@ -151,9 +174,10 @@ class ObservedInformation:
     def add_step(self, step: StepFactors, robot: int = 0) -> None:
         self.segments[robot].append(step)
 
-    def close_segment(self, theta: np.ndarray, robot: int = 0) -> None:
+    def close_segment(self, theta: np.ndarray, robot: int = 0) -> SegmentSystem | None:
         """Linearise ``robot``'s buffered factors at (xbar_t, theta) and integrate out every
-        pose of its segment but the last, which becomes its key pose.
+        pose of its segment but the last, which becomes its key pose; the segment's factor
+        (:meth:`segment_system`, None without a segment), e.g. to send to other nodes.
 
         Only the old key pose couples to the whole map, and the segment's poses see
         only the landmarks S observed in it: the factors go into a small system over
@@ -163,16 +187,33 @@ class ObservedInformation:
         In a fleet the system is reordered so that the robot's key block comes first
         (the other keys then sit with the map) and put back in order afterwards.
         """
+        segment = self.segment_system(theta, robot)
+        if segment is not None:
+            self.fold(segment, robot)
+        return segment
+
+    def segment_system(self, theta: np.ndarray, robot: int = 0) -> SegmentSystem | None:
+        """``robot``'s buffered factors linearised at (xbar_t, theta) as one factor; the buffer empties."""
         segment = self.segments[robot]
         if not segment:
-            return
-        k = len(segment)
-        seen = np.unique(np.concatenate([s.rows for s in segment]))
-        n_pose = POSE_DIM * (k + 1)
+            return None
+        seen, counts = np.unique(np.concatenate([s.rows for s in segment]), return_counts=True)
+        n_pose = POSE_DIM * (len(segment) + 1)
         local = np.zeros((n_pose + 2 * seen.size,) * 2)
         local_vector = np.zeros(local.shape[0])
         self._add_motion_factors(local, local_vector, robot)
         self._add_observation_factors(local, local_vector, theta, n_pose, seen, robot)
+        self.segments[robot] = []
+        return SegmentSystem(local, local_vector, self.key_poses[robot].copy(), segment[-1].pose.copy(), seen, counts)
+
+    def fold(self, segment: SegmentSystem, robot: int = 0) -> None:
+        """Add ``segment``'s factor against ``robot``'s key block and integrate out its key and
+        every pose but the last, which becomes the key.  Built at another key point (another
+        node's, :meth:`move_key` moves them apart), the factor is re-expressed exactly first."""
+        shift = segment.key - self.key_poses[robot]
+        if np.any(shift):
+            self.move_key(shift, robot)
+        local, local_vector, seen, k = segment.local.copy(), segment.vector.copy(), segment.seen, segment.steps
         key = self._key(robot)
         local[:POSE_DIM, :POSE_DIM] += self.info[key, key]
         local_vector[:POSE_DIM] += self.vector[key]
@@ -185,9 +226,8 @@ class ObservedInformation:
             self.info[np.ix_(order, order)], self.vector[order] = info, vector
         else:
             self.info, self.vector = info, vector
-        self.key_poses[robot] = segment[-1].pose
-        self.key_firsts[robot] = segment[-1].pose
-        self.segments[robot] = []
+        self.key_poses[robot] = segment.pose
+        self.key_firsts[robot] = segment.pose
         self._covariance_cache = None
 
     def _add_motion_factors(self, info: np.ndarray, vector: np.ndarray, robot: int) -> None:

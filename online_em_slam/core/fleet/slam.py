@@ -26,6 +26,7 @@ from ..types import LandmarkMap, Observations, PoseEstimate, StepReport
 from .robot import FleetRobot
 from .shared_map import FleetLandmarkTable, RobotMStep
 from .warmup import FleetWarmupReplay
+from ..em.segment_message import SegmentMessage
 
 
 class FleetSlam:
@@ -134,6 +135,36 @@ class FleetSlam:
     def relocalise(self, robot: int, pose, std=None) -> None:
         """Robot ``robot`` is near ``pose`` on the fleet's map (OnlineEMSlam.relocalise)."""
         self.robot(robot).relocalise(pose, std)
+
+    # ------------------------------------------------------------------ other nodes
+    def share_segments(self) -> None:
+        """From now on every segment this fleet closes is also kept for other nodes (:meth:`outgoing`):
+        the distributed mode, one node per robot, each folding in the others' (:meth:`fold_remote`)."""
+        self._m_step.outbox = []
+
+    def outgoing(self) -> list[SegmentMessage]:
+        """The segment messages closed since the last call (empty unless :meth:`share_segments`)."""
+        messages = self._m_step.outbox or []
+        if self._m_step.outbox is not None:
+            self._m_step.outbox = []
+        return messages
+
+    def fold_remote(self, message: SegmentMessage) -> None:
+        """Another node's segment of robot ``message.robot`` into the map (a robot this node does not
+        drive): its landmarks found by id, the ones new here added at the sender's estimates."""
+        rows = self._rows_of(message.ids, message.theta)
+        self._m_step.fold_remote(message, rows, self._map)
+        if message.segment is not None:
+            np.add.at(self._map.n_obs, rows, message.segment.counts)
+
+    def _rows_of(self, ids: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        row_of = {int(i): row for row, i in enumerate(self._map.ids.tolist())}
+        new = np.array([int(i) not in row_of for i in ids.tolist()], dtype=bool)
+        if new.any():
+            added = self._map.add(theta[new], ids[new], 0)
+            self._m_step.add_landmarks(added.size)
+            row_of.update(zip(ids[new].tolist(), added.tolist()))
+        return np.array([row_of[int(i)] for i in ids.tolist()], dtype=np.int64)
 
     # ------------------------------------------------------------------ outputs
     def pose(self, robot: int) -> PoseEstimate:
