@@ -139,8 +139,10 @@ class FleetSlam:
     # ------------------------------------------------------------------ other nodes
     def share_segments(self) -> None:
         """From now on every segment this fleet closes is also kept for other nodes (:meth:`outgoing`):
-        the distributed mode, one node per robot, each folding in the others' (:meth:`fold_remote`)."""
+        the distributed mode, one node per robot, each folding in the others' (:meth:`fold_remote`).
+        No warm-up replay then: it would restart the map without the other nodes' segments."""
         self._m_step.outbox = []
+        self._warmup.discard()
 
     def outgoing(self) -> list[SegmentMessage]:
         """The segment messages closed since the last call (empty unless :meth:`share_segments`)."""
