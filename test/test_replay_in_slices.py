@@ -78,7 +78,8 @@ def test_the_nodes_timer_feeds_the_replay_and_checkpoints_the_inputs_when_it_tak
     slam.replay_in_slices = True
     checkpoints, lines = [], []
     node = SimpleNamespace(lock=threading.RLock(), slam=slam,
-                           inputs=SimpleNamespace(checkpoint=lambda: checkpoints.append(slam.step_count)),
+                           inputs=SimpleNamespace(pipeline=SimpleNamespace(
+                               checkpoint=lambda: checkpoints.append(slam.step_count))),
                            get_logger=lambda: SimpleNamespace(info=lines.append))
     feeder = warmup_replay.WarmupReplayFeeder(node)
     ticks = 0
@@ -88,3 +89,36 @@ def test_the_nodes_timer_feeds_the_replay_and_checkpoints_the_inputs_when_it_tak
         ticks += feeder.catching_up
     assert ticks > 0 and not feeder.catching_up
     assert len(checkpoints) == 1 and len(lines) == 1 and slam.learned_noise()["warmup_replayed"]
+
+
+def test_the_node_checkpoints_through_an_interface_both_kinds_of_inputs_have():
+    """The timer calls ``node.inputs.pipeline.checkpoint()``: the single robot's InputPipeline and
+    the fleet's FleetPipelines both have it (the fleet node died on a method only one had)."""
+    from online_em_slam.pipeline.input_pipeline import InputPipeline
+    from online_em_slam.ros.fleet_inputs import FleetPipelines
+
+    assert callable(InputPipeline.checkpoint) and callable(FleetPipelines.checkpoint)
+
+
+def test_a_replay_that_fails_is_dropped_and_counted_and_the_first_pass_goes_on(monkeypatch):
+    from online_em_slam.core.filter.warmup import WarmupReplay
+
+    scenario = simulate(ScenarioConfig(seed=2, n_steps=700, outlier_probability=0.1, **TRUTH))
+    fed = []
+
+    def failing(estimator, method, stamp, value):
+        fed.append(method)
+        if len(fed) == 50:
+            raise FloatingPointError("a failure inside the replay")
+        getattr(estimator, method)(stamp, value)
+    monkeypatch.setattr(WarmupReplay, "_feed", staticmethod(failing))
+    for in_slices in (False, True):
+        fed.clear()
+        slam = OnlineEMSlam(_learning(scenario), initial_pose=scenario.initial_pose, stamp=0.0)
+        slam.replay_in_slices = in_slices
+        for step in scenario.steps:
+            feed(slam, step)
+            slam.advance_replay(16)
+        assert slam.drops["warmup_replay_failed"] == 1 and len(fed) == 50
+        assert not slam.learned_noise()["warmup_replayed"] and slam._warmup_log is None
+        assert np.all(np.isfinite(slam.landmarks().positions)) and slam.step_count > 600

@@ -63,8 +63,10 @@ def start_node(params: Path, robots, initial, seed: int, log, extra=()):
 
 
 def replay_and_watch(bag: Path, robots, rate: float, timeout: float, settle_timeout: float, node_pid: int,
-                     log_dir: Path):
-    """Replay the robots' inputs at ``rate`` while watching /diagnostics and ~/landmarks; what was seen."""
+                     log_dir: Path, wait_replay: bool = False):
+    """Replay the robots' inputs at ``rate`` while watching /diagnostics and ~/landmarks; what was seen.
+    ``wait_replay``: settled only once every robot reports its warm-up replay done (the node feeds
+    it between its inputs, so it may still be catching up when the inputs end)."""
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -106,7 +108,9 @@ def replay_and_watch(bag: Path, robots, rate: float, timeout: float, settle_time
                    seen["diag"].get("observation_updates"))
             if now != last:
                 last, quiet_since = now, time.monotonic()
-            elif time.monotonic() - quiet_since > 5.0 and seen["diag"].get("queued_inputs") == "0":
+            elif (time.monotonic() - quiet_since > 5.0 and seen["diag"].get("queued_inputs") == "0"
+                  and (not wait_replay or all(seen["diag"].get(f"{r}.noise_learned.warmup_replayed") == "True"
+                                              for r in robots))):
                 break
         seen["settle_s"] = round(time.monotonic() - (settle - settle_timeout), 1)
         spin_until = time.monotonic() + 5.0       # the map timer's last publication
@@ -181,6 +185,8 @@ def main(argv=None) -> int:
                         help="seconds past the bag's duration / rate before the replay is stopped (a node "
                              "slower than the rate holds the reliable replay back)")
     parser.add_argument("--output", type=Path, default=Path("out/fleet_replay_check"), help="node logs")
+    parser.add_argument("--wait-replay", action="store_true",
+                        help="after the bag, wait (up to 600 s) until the node's warm-up replay has taken over")
     args = parser.parse_args(argv)
     os.environ.setdefault("ROS_DOMAIN_ID", "57")
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -198,7 +204,8 @@ def main(argv=None) -> int:
             node = start_node(args.params, robots, initial, args.seed, log, args.node_param)
             try:
                 seen = replay_and_watch(args.bag, robots, rate, timeout=duration / rate + args.timeout,
-                                        settle_timeout=600.0, node_pid=node.pid, log_dir=args.output)
+                                        settle_timeout=600.0, node_pid=node.pid, log_dir=args.output,
+                                        wait_replay=args.wait_replay)
                 node_cpu = process_cpu_seconds(node.pid)
             finally:
                 node.send_signal(signal.SIGINT)

@@ -101,10 +101,6 @@ class Inputs:
         self.odom_sub = self.control_sub = self.obs_sub = None
         self.watch = InputWatch()
 
-    def checkpoint(self) -> None:
-        """The estimator was changed outside the inputs: a failing input later returns to this state."""
-        self.pipeline.checkpoint()
-
     @staticmethod
     def sheds(settings) -> bool:
         """Shedding keeps best-effort queues from overflowing; with reliable (KEEP_ALL) inputs

@@ -34,6 +34,6 @@ class WarmupReplayFeeder:
                 catching_up = estimator.advance_replay(SLICE)
             if self.catching_up and not catching_up:
                 # The replayed estimator has taken over: a failing input must not undo that.
-                node.inputs.checkpoint()
+                node.inputs.pipeline.checkpoint()       # one robot's pipeline, or every robot's
                 node.get_logger().info("the warm-up replay has caught up and took over (the pose may jump)")
             self.catching_up = catching_up

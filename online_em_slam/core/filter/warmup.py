@@ -78,13 +78,20 @@ class WarmupReplay:
         if replaying is None:
             return False
         end = len(self.inputs) if max_inputs is None else min(len(self.inputs), self._fed + max_inputs)
-        for method, stamp, value in self.inputs[self._fed:end]:
-            self._feed(replaying, method, stamp, value)
-            self._fed += 1
-            if self._fed == self._warmup_length:
-                # The warm-up's values were learned from these inputs; later ones teach again.
-                for learner in self._learners(replaying):
-                    learner.holding = False
+        try:
+            for method, stamp, value in self.inputs[self._fed:end]:
+                self._feed(replaying, method, stamp, value)
+                self._fed += 1
+                if self._fed == self._warmup_length:
+                    # The warm-up's values were learned from these inputs; later ones teach again.
+                    for learner in self._learners(replaying):
+                        learner.holding = False
+        except Exception:  # noqa: BLE001 - a failure no check caught: the first pass goes on, counted
+            # Not re-raised: a rollback of the input that made the replay due would make it due
+            # again at the next input, and fail every input after it.
+            self.discard()
+            estimator.drops["warmup_replay_failed"] += 1
+            return False
         if self._fed < len(self.inputs):
             return True
         self._take_over(estimator, replaying)
