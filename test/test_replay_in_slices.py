@@ -88,7 +88,7 @@ def test_the_nodes_timer_feeds_the_replay_and_checkpoints_the_inputs_when_it_tak
         feeder.tick()
         ticks += feeder.catching_up
     assert ticks > 0 and not feeder.catching_up
-    assert len(checkpoints) == 1 and len(lines) == 1 and slam.learned_noise()["warmup_replayed"]
+    assert len(checkpoints) == 1 and len(lines) == 2 and slam.learned_noise()["warmup_replayed"]
 
 
 def test_the_node_checkpoints_through_an_interface_both_kinds_of_inputs_have():

@@ -32,8 +32,11 @@ class WarmupReplayFeeder:
             catching_up = estimator.advance_replay(SLICE)
             while catching_up and time.monotonic() < deadline:
                 catching_up = estimator.advance_replay(SLICE)
+            if catching_up and not self.catching_up:
+                node.get_logger().info("the warm-up replay started: it is fed between the inputs")
             if self.catching_up and not catching_up:
-                # The replayed estimator has taken over: a failing input must not undo that.
+                # The replayed estimator has taken over (or failed, counted): a failing input must
+                # not undo that.
                 node.inputs.pipeline.checkpoint()       # one robot's pipeline, or every robot's
-                node.get_logger().info("the warm-up replay has caught up and took over (the pose may jump)")
+                node.get_logger().info("the warm-up replay has ended (the pose may jump)")
             self.catching_up = catching_up

@@ -90,7 +90,7 @@ class WarmupReplay:
             # Not re-raised: a rollback of the input that made the replay due would make it due
             # again at the next input, and fail every input after it.
             self.discard()
-            estimator.drops["warmup_replay_failed"] += 1
+            self._drops(estimator)["warmup_replay_failed"] += 1
             return False
         if self._fed < len(self.inputs):
             return True
@@ -114,6 +114,10 @@ class WarmupReplay:
     @staticmethod
     def _learners(estimator) -> list:
         return [estimator._noise]
+
+    @staticmethod
+    def _drops(estimator):
+        return estimator.drops
 
     @staticmethod
     def _feed(estimator, method: str, stamp: float, value) -> None:

@@ -40,6 +40,10 @@ class FleetWarmupReplay(WarmupReplay):
         return fresh
 
     @staticmethod
+    def _drops(fleet):
+        return fleet.robot(0).drops          # the fleet's drops are the robots' (FleetSlam.drops sums them)
+
+    @staticmethod
     def _learners(fleet) -> list:
         return [robot._noise for robot in fleet._robots]
 
