@@ -142,6 +142,12 @@ NODE_SPECS = (
               "node's own topics.", read_only=True),
     ParamSpec("initial_poses", [], "Fleet mode: x, y, yaw of each robot in the map frame, robot after robot "
               "(3 per robot, as initial_pose.*). Empty: every robot starts at initial_pose.*.", read_only=True),
+    ParamSpec("local_robot", "", "Distributed fleet mode: the one robot of robots this node drives (its inputs "
+              "and outputs only); the node shares the map with the other robots' nodes over segments_topic. "
+              "Empty: this node drives every robot of robots.", read_only=True),
+    ParamSpec("segments_topic", "/fleet/map_segments", "Distributed fleet mode: the topic (std_msgs/"
+              "UInt8MultiArray, reliable, transient local) on which the nodes exchange their robots' map "
+              "information, one closed segment per message.", read_only=True),
     ParamSpec("warn_throttle_period", 5.0, "Minimum period (s) between repeated warnings of one kind.",
               0.0, 3600.0, read_only=True),
     ParamSpec("marker_sigma", 2.0, "Covariance ellipses of ~/landmark_markers are drawn at this many "
@@ -182,6 +188,8 @@ class NodeSettings:
     initial_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
     robots: tuple[str, ...] = ()
     initial_poses: tuple[float, ...] = ()
+    local_robot: str = ""
+    segments_topic: str = "/fleet/map_segments"
     warn_throttle_period: float = 5.0
     marker_sigma: float = 2.0
 
@@ -389,7 +397,8 @@ _ROBOT_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
 
 
 def _check_fleet(settings: NodeSettings) -> None:
-    """robots: distinct relative ROS names; initial_poses: empty or 3 finite numbers per robot."""
+    """robots: distinct relative ROS names; initial_poses: empty or 3 finite numbers per robot;
+    local_robot: empty or one of robots."""
     robots, poses = settings.robots, settings.initial_poses
     for name in robots:
         if not isinstance(name, str) or not _ROBOT_NAME.match(name):
@@ -405,6 +414,10 @@ def _check_fleet(settings: NodeSettings) -> None:
     for k, value in enumerate(poses):
         limit = math.pi if k % 3 == 2 else 1e7
         _check_range(f"initial_poses[{k}]", value, -limit, limit)
+    if settings.local_robot and settings.local_robot not in robots:
+        raise ParameterError(f"local_robot: {settings.local_robot!r} is not one of robots {list(robots)}")
+    if settings.local_robot and not settings.segments_topic:
+        raise ParameterError("segments_topic must not be empty with local_robot (distributed fleet mode)")
 
 
 def _core_config(merged: dict[str, Any], settings: NodeSettings) -> SlamConfig:

@@ -127,6 +127,8 @@ class Diagnostics:
             if node.fleet_mode:                         # each robot's ESS, stamp, learned noise, inputs
                 values.update(slam.robot_diagnostics())
                 values.update({f"inputs.{robot}": count for robot, count in inputs.received().items()})
+            if node.segment_link is not None:             # distributed fleet mode: segments.*
+                values.update(node.segment_link.diagnostics())
             values.update({f"dropped.{reason}": count for reason, count in sorted(drops.items())})
             values.update({f"decided.{reason}": count for reason, count in sorted(decided.items())})
             values.update({f"corrected.{reason}": count for reason, count in sorted(inputs.corrected.items())})

@@ -5,9 +5,15 @@ map-file services) see the fleet through :class:`FleetEstimate`: the one map, th
 newest stamp of any robot, the drops of every robot's filter under
 ``<robot>.<reason>``.  Each robot's own pose, particles and inputs go through its
 :class:`~online_em_slam.pipeline.fleet.RobotView` (fleet_robot.py).
+
+In the distributed mode (``local_robot``) the node drives one robot of the fleet: only
+that robot's filter is fed and reported, its segments go out (:meth:`outgoing`) and the
+other nodes' come in (:meth:`fold_remote`, through the fleet's rollback so that a failing
+input undone later keeps them), see segment_link.py.
 """
 from __future__ import annotations
 
+import secrets
 from collections import Counter
 
 from ..core.fleet.slam import FleetSlam
@@ -15,12 +21,33 @@ from ..pipeline.fleet import robot_views
 
 
 class FleetEstimate:
-    """``fleet`` (FleetSlam) and its robots' feeds; ``robots``: the robots' names, in order."""
+    """``fleet`` (FleetSlam) and its robots' feeds; ``robots``: the robots' names, in order;
+    ``local_robot``: the one this node drives (distributed mode), empty: every robot."""
 
-    def __init__(self, config, initial_poses, robots: tuple[str, ...]) -> None:
+    def __init__(self, config, initial_poses, robots: tuple[str, ...], local_robot: str = "") -> None:
         self.fleet = FleetSlam(config, initial_poses)
         self.robots = tuple(robots)
         self.feeds = robot_views(self.fleet)
+        self.driven = (self.robots.index(local_robot),) if local_robot else tuple(range(len(self.robots)))
+        # Distributed mode (segment_link.py): this estimator's session, drawn at its start so that
+        # the other nodes tell its messages numbered from 1 again from duplicates, and the
+        # (session, sequence) of each other robot's message folded last.
+        self.session = secrets.randbits(63)
+        self.received: dict[str, tuple[int, int]] = {}
+        if local_robot:
+            self.fleet.share_segments()
+
+    @property
+    def distributed(self) -> bool:
+        return len(self.driven) < len(self.robots)
+
+    def outgoing(self) -> list:
+        """The segment messages this node's robot closed since the last call (distributed mode)."""
+        return self.fleet.outgoing()
+
+    def fold_remote(self, message) -> None:
+        """Another node's segment message, through the fleet's rollback (a restore re-applies it)."""
+        self.feeds[0].shared.call("fold_remote", message)
 
     @property
     def config(self):
@@ -40,14 +67,15 @@ class FleetEstimate:
     @property
     def last_stamp(self) -> float | None:
         """The newest stamp any robot's filter has reached."""
-        stamps = [self.fleet.robot(r).last_stamp for r in range(self.fleet.n_robots)]
+        stamps = [self.fleet.robot(r).last_stamp for r in self.driven]
         stamps = [s for s in stamps if s is not None]
         return max(stamps) if stamps else None
 
     @property
     def drops(self) -> Counter:
         out: Counter = Counter()
-        for r, name in enumerate(self.robots):
+        for r in self.driven:
+            name = self.robots[r]
             out.update({f"{name}.{reason}": n for reason, n in self.fleet.robot(r).drops.items() if n})
         return out
 
@@ -55,9 +83,10 @@ class FleetEstimate:
         return self.fleet.landmarks(confirmed_only)
 
     def robot_diagnostics(self) -> dict:
-        """Per robot, under ``<robot>.``: its ESS, last stamp and learned noise (/diagnostics)."""
+        """Per driven robot, under ``<robot>.``: its ESS, last stamp and learned noise (/diagnostics)."""
         values = {}
-        for r, name in enumerate(self.robots):
+        for r in self.driven:
+            name = self.robots[r]
             robot = self.fleet.robot(r)
             values[f"{name}.ess"] = float(robot.effective_sample_size)
             values[f"{name}.last_stamp"] = robot.last_stamp if robot.last_stamp is not None else -1.0
@@ -68,8 +97,8 @@ class FleetEstimate:
         return values
 
     def learned_noise(self) -> dict:
-        """The first robot's learned noise (each robot learns its own)."""
-        return self.fleet.robot(0).learned_noise()
+        """The first driven robot's learned noise (each robot learns its own)."""
+        return self.fleet.robot(self.driven[0]).learned_noise()
 
     def save_map(self, path: str) -> None:
         """The joint map as a single robot's map file (FleetSlam.save_map)."""
@@ -77,7 +106,11 @@ class FleetEstimate:
 
     def load_map(self, path: str, restore_pose: bool = True) -> None:
         """A map file (a fleet's or a single robot's) becomes the one map; every robot restarts on
-        it, robot 0 relocalising around the file's pose, the others around their own (FleetSlam.load_map)."""
+        it, robot 0 relocalising around the file's pose, the others around their own (FleetSlam.load_map).
+        Not in the distributed mode: the other nodes' maps would not follow."""
+        if self.distributed:
+            raise ValueError("a distributed fleet node (local_robot) cannot load a map file: the other "
+                             "robots' nodes would not load it")
         self.fleet.load_map(path, restore_pose)
 
     def set_pose(self, pose, std=None) -> None:

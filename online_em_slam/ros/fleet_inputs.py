@@ -7,7 +7,8 @@ publishers and map -> its odom) and answers the node, the services and
 /diagnostics for all of them: the input streams are watched together (one
 :class:`~.input_watch.InputWatch`), the queues and loads are summed, drops are
 reported per robot (``dropped.<robot>.<reason>``), and so are the inputs received
-(``inputs.<robot>``).
+(``inputs.<robot>``).  In the distributed mode (``local_robot``) it holds only the
+robot this node drives.
 """
 from __future__ import annotations
 
@@ -79,9 +80,9 @@ class FleetInputs:
     def __init__(self, node, diagnostics) -> None:
         self.node = node
         estimate = node.slam
-        poses = initial_poses(node.settings)
-        self.robots = [FleetRobotIO(node, r, names, estimate.feeds[r], poses[r], diagnostics)
-                       for r, names in enumerate(fleet_names(node.settings))]
+        poses, names = initial_poses(node.settings), fleet_names(node.settings)
+        self.robots = [FleetRobotIO(node, r, names[r], estimate.feeds[r], poses[r], diagnostics)
+                       for r in estimate.driven]
         self.watch = InputWatch()
         self._share_watch()
         self.pipeline = FleetPipelines(self.robots)
@@ -119,8 +120,8 @@ class FleetInputs:
 
     def restart(self, estimate) -> None:
         """The node made a new fleet (a reset): every robot feeds it."""
-        for io, feed in zip(self.robots, estimate.feeds):
-            io.restart(feed)
+        for io in self.robots:
+            io.restart(estimate.feeds[io.view.index])
 
     # ------------------------------------------------------------------ periodic
     def on_clock_jump(self, jump) -> None:

@@ -64,6 +64,7 @@ from ..parameters.specs import (ParameterError, all_specs, as_declared_type, bui
 from .qos import input_qos, latched_qos
 from .map_files import MapFiles
 from .services import Commands
+from .segment_link import PERIOD as SEGMENT_PERIOD, SegmentLink
 from .throttle import Throttle
 from . import warmup_replay
 
@@ -84,6 +85,7 @@ class OnlineEmSlamNode(LifecycleNode):
         super().__init__(node_name, **kwargs)
         self._declare_parameters()
         self._made: dict[str, list] = {"configure": [], "activate": []}
+        self.segment_link = None
         self._jump_handle = None
         if self.settings.autostart:
             self.trigger_configure()
@@ -111,6 +113,7 @@ class OnlineEmSlamNode(LifecycleNode):
         with self._making("activate"):
             self.inputs.subscribe()
             self._make_timers()
+            self._make_segment_link()
         return super().on_activate(state)
 
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
@@ -210,7 +213,7 @@ class OnlineEmSlamNode(LifecycleNode):
         """OnlineEMSlam; with ``robots`` (fleet mode) the FleetSlam of every robot, one map."""
         s = self.settings
         if s.robots:
-            estimator = FleetEstimate(self.config, initial_poses(s), s.robots)
+            estimator = FleetEstimate(self.config, initial_poses(s), s.robots, s.local_robot)
         else:
             estimator = OnlineEMSlam(self.config, initial_pose=s.initial_pose)
         estimator.replay_in_slices = True        # fed between the inputs (warmup_replay.py)
@@ -265,6 +268,13 @@ class OnlineEmSlamNode(LifecycleNode):
             JumpThreshold(min_forward=None, min_backward=Duration(seconds=-s.time_jump_threshold),
                           on_clock_change=False),
             post_callback=self.inputs.on_clock_jump)
+
+    def _make_segment_link(self) -> None:
+        """Distributed fleet mode (``local_robot``): the segments out and in (segment_link.py)."""
+        self.segment_link = None
+        if self.settings.local_robot:
+            self.segment_link = SegmentLink(self)
+            self.create_timer(SEGMENT_PERIOD, self.segment_link.send, clock=self._steady)
 
     # ------------------------------------------------------------------ shared helpers
     def now_sec(self) -> float:

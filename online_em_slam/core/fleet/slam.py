@@ -156,8 +156,9 @@ class FleetSlam:
         drive): its landmarks found by id, the ones new here added at the sender's estimates."""
         rows = self._rows_of(message.ids, message.theta)
         self._m_step.fold_remote(message, rows, self._map)
-        if message.segment is not None:
+        if message.segment is not None:        # confirmed as this node's own observations confirm them
             np.add.at(self._map.n_obs, rows, message.segment.counts)
+            self._map.confirmed[rows] |= self._map.n_obs[rows] >= self.config.association.confirm_observations
 
     def _rows_of(self, ids: np.ndarray, theta: np.ndarray) -> np.ndarray:
         row_of = {int(i): row for row, i in enumerate(self._map.ids.tolist())}
