@@ -57,10 +57,17 @@ class StampGuard:
         # watched stream whose queue drains faster than the merged ones' (odometry ahead of the
         # controls under load) runs ahead of them on its own line, and is no jump.
         newest = max(max(self._newest.values(), default=reference), reference)
-        return item.stamp < reference - self.threshold or item.stamp > newest + self.threshold
+        if item.stamp > newest + self.threshold:
+            return True
+        # Behind is judged against the stream's own line only.  A stream's first inputs behind the
+        # others' are a stream that lags (its subscription matched later, its queue read after
+        # theirs), not a jump: taken for one, they restarted the robot's pose and time line
+        # seconds into a run; accepted, the merge places them or counts them out of order.
+        own = self._newest.get(item.kind, self._watched.get(item.kind))
+        return own is not None and item.stamp < own - self.threshold
 
     def check(self, item: Input) -> Verdict:
-        if not self.is_jump(item):
+        if not self.is_jump(item) and not self._joins_candidate(item):
             if any(c.kind == item.kind for c in self._candidate):
                 self._refute()
             self.accept(item)
@@ -71,6 +78,11 @@ class StampGuard:
         if len(self._candidate) < self.confirmations:
             return Verdict(HOLD)
         return self._confirm()
+
+    def _joins_candidate(self, item: Input) -> bool:
+        """A stream's first input on the line of the jump being confirmed is part of that jump."""
+        first = item.kind not in self._newest and item.kind not in self._watched
+        return first and bool(self._candidate) and self._agrees(item)
 
     def _agrees(self, item: Input) -> bool:
         stamps = [c.stamp for c in self._candidate]
