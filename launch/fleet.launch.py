@@ -9,8 +9,11 @@ reads ``/robotK/odom`` (or ``control``), ``/robotK/landmark_observations`` and
 ``robotK/odom`` on the shared /tf (nav2's multi-robot frame names), and one map on
 ``~/landmarks``.  Each robot's start (``initial_poses``, 3 numbers per robot) belongs in
 the parameter file.  ``rviz:=true`` starts one RViz with every robot's displays
-(``online_em_slam.ros.rviz_config.fleet_config``).  For one independent node (and map)
-per robot use multi_robot.launch.py.  Needs a real Jazzy install (launch, rviz2); in the
+(``online_em_slam.ros.rviz_config.fleet_config``).  ``local_robot:=robot1`` starts the
+distributed mode's node for that robot (node ``online_em_slam_robot1``): it drives robot1 only
+and shares the map with the other robots' nodes, each launched the same way on its robot
+(docs/NODE.md, "Distributed").  For one independent node (and map) per robot use
+multi_robot.launch.py.  Needs a real Jazzy install (launch, rviz2); in the
 PyPI-wheels set-up run ``python -m online_em_slam.ros.node --ros-args -p robots:=[...]``.
 """
 import os
@@ -30,6 +33,8 @@ def _arguments(share):
                               description="The robots' namespaces, comma-separated."),
         DeclareLaunchArgument("params_file", default_value=os.path.join(share, "config", "online_em_slam.yaml"),
                               description="Parameter YAML (/** + ros__parameters), with initial_poses."),
+        DeclareLaunchArgument("local_robot", default_value="",
+                              description="Distributed mode: the one robot this node drives (empty: all)."),
         DeclareLaunchArgument("use_sim_time", default_value="false", description="Use /clock."),
         DeclareLaunchArgument("autostart", default_value="true",
                               description="Configure and activate the lifecycle node at start."),
@@ -45,11 +50,13 @@ def _robots(context) -> list[str]:
 
 
 def _slam(context, sim_time):
+    local = LaunchConfiguration("local_robot").perform(context).strip()
     return [Node(
-        package="online_em_slam", executable="online_em_slam_node", name="online_em_slam", output="screen",
+        package="online_em_slam", executable="online_em_slam_node",
+        name=f"online_em_slam_{local.replace('/', '_')}" if local else "online_em_slam", output="screen",
         emulate_tty=True,
         parameters=[LaunchConfiguration("params_file"),
-                    {"use_sim_time": sim_time, "robots": _robots(context),
+                    {"use_sim_time": sim_time, "robots": _robots(context), "local_robot": local,
                      "autostart": ParameterValue(PythonExpression(["'", LaunchConfiguration("autostart"),
                                                                    "'.lower() == 'true'"]), value_type=bool)}],
         arguments=["--ros-args", "--log-level", LaunchConfiguration("log_level")])]
