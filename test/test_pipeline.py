@@ -449,3 +449,19 @@ def test_a_streams_first_inputs_behind_the_others_lag_and_are_no_jump():
     pushed += [path.push(OBSERVATIONS, 1000.1 + 0.2 * k, EMPTY, 0.0) for k in range(20)]
     assert not any(p.restarted or p.jump is not None for p in pushed)
     assert "stamp_outlier" not in path.drops
+
+
+def test_clouds_are_judged_for_loss_once_an_empty_one_came():
+    """MRCLAM's camera publishes a cloud per frame with a barcode read: regular at first (frames
+    0.22-0.24 s apart), then frames left out, which were counted as 300-1800 lost clouds per robot
+    in 600 s.  A detector shows that it reports every scan by an empty cloud; only then are its
+    gaps losses."""
+    def run(first_empty: bool) -> Counter:
+        path = InputPath((CONTROL, OBSERVATIONS), silence=0.0, jump_threshold=1.0)
+        scans = [0.23 * k for k in range(40)] + [0.23 * k for k in range(43, 80)]     # 3 frames without a cloud
+        for k, t in enumerate(scans):
+            path.push(CONTROL, 1000.0 + t - 0.01, (1.0, 0.0), 0.0)
+            path.push(OBSERVATIONS, 1000.0 + t, EMPTY if (first_empty and k == 3) else obs(5.0), 0.0)
+        return path.drops
+    assert run(first_empty=False)["observations_lost"] == 0
+    assert run(first_empty=True)["observations_lost"] == 3

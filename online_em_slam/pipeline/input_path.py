@@ -92,7 +92,7 @@ class InputPath:
             self.guard.note(kind, float(stamp))
 
     def _sequence(self, item: Input, wall: float) -> list[Input]:
-        self.gaps.observe(item.kind, item.stamp)
+        self.gaps.observe(item.kind, item.stamp, item.payload is not None and item.is_empty_cloud)
         return self.sequencer.push(item, wall)
 
     def _jumped(self, verdict: Verdict, wall: float) -> Pushed:
