@@ -27,7 +27,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fleet_replay_check import KINDS, against_offline, fleet_setup, node_map, offline_map, score_map  # noqa: E402
+from fleet_replay_check import (KINDS, against_offline, fleet_setup, node_map, offline_map,  # noqa: E402
+                                replay_while_spinning, score_map)
 
 
 def start_nodes(params: Path, robots, initial, seed: int, log_dir: Path, extra=()) -> list:
@@ -84,20 +85,8 @@ def replay_and_watch(bag: Path, robots, rate: float, timeout: float, log_dir: Pa
         watch(node, robots, seen)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
-        cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", str(rate), "--clock",
-               "--topics", *topics, "--wait-subscribers", *(f"{t}:1" for t in topics), "/clock:5",
-               "--wait-timeout", "120", "--start-delay", "2", "--ack-timeout", "900"]
-        replay = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        deadline = time.monotonic() + timeout
-        try:
-            while replay.poll() is None and time.monotonic() < deadline:
-                executor.spin_once(timeout_sec=0.05)
-        finally:
-            if replay.poll() is None:
-                replay.send_signal(signal.SIGINT)
-            out, err = replay.communicate(timeout=60)
-        (log_dir / f"replay_rate{rate:g}.err").write_text(err)
-        seen["replay"] = json.loads(out.strip().splitlines()[-1])
+        seen["replay"] = replay_while_spinning(bag, topics, rate, timeout, executor, log_dir,
+                                               clock_subscribers=len(robots))[0]
         end, last, quiet = time.monotonic() + 600.0, None, time.monotonic()
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)

@@ -62,6 +62,31 @@ def start_node(params: Path, robots, initial, seed: int, log, extra=()):
     return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
 
 
+def replay_while_spinning(bag: Path, topics, rate: float, timeout: float, executor, log_dir: Path,
+                          clock_subscribers: int):
+    """Replay ``topics`` of ``bag`` at ``rate`` with /clock (online-em-slam-replay, once ``topics``
+    and /clock have their subscribers) while ``executor`` spins; (the replay's summary, its exit
+    status, its last stderr lines).  Stopped by SIGINT after ``timeout`` s."""
+    cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", str(rate), "--clock",
+           "--topics", *topics, "--wait-subscribers", *(f"{t}:1" for t in topics), f"/clock:{clock_subscribers}",
+           "--wait-timeout", "120", "--start-delay", "2", "--ack-timeout", "900"]
+    replay = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + timeout
+    try:
+        while replay.poll() is None and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        if replay.poll() is None:
+            replay.send_signal(signal.SIGINT)
+        out, err = replay.communicate(timeout=60)
+    (log_dir / f"replay_rate{rate:g}.err").write_text(err)
+    lines = out.strip().splitlines()
+    if not lines:
+        raise RuntimeError(f"the replay ended with status {replay.returncode} and no summary: "
+                           f"{' | '.join(err.strip().splitlines()[-5:])}")
+    return json.loads(lines[-1]), replay.returncode, err.strip().splitlines()[-5:]
+
+
 def replay_and_watch(bag: Path, robots, rate: float, timeout: float, settle_timeout: float, node_pid: int,
                      log_dir: Path, wait_replay: bool = False):
     """Replay the robots' inputs at ``rate`` while watching /diagnostics and ~/landmarks; what was seen.
@@ -80,26 +105,8 @@ def replay_and_watch(bag: Path, robots, rate: float, timeout: float, settle_time
         watch_map_and_diagnostics(node, seen)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
-        cmd = [sys.executable, "-m", "online_em_slam.bag.replay", str(bag), "--rate", str(rate), "--clock",
-               "--topics", *topics, "--wait-subscribers", *(f"{t}:1" for t in topics), "/clock:1",
-               "--wait-timeout", "120", "--start-delay", "2", "--ack-timeout", "900"]
-        replay = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        deadline = time.monotonic() + timeout
-        try:
-            while replay.poll() is None and time.monotonic() < deadline:
-                executor.spin_once(timeout_sec=0.05)
-        finally:
-            if replay.poll() is None:
-                replay.send_signal(signal.SIGINT)
-            out, err = replay.communicate(timeout=60)
-        (log_dir / f"replay_rate{rate:g}.err").write_text(err)
-        lines = out.strip().splitlines()
-        if not lines:
-            raise RuntimeError(f"the replay ended with status {replay.returncode} and no summary: "
-                               f"{' | '.join(err.strip().splitlines()[-5:])}")
-        seen["replay"] = json.loads(lines[-1])
-        seen["replay_exit"] = replay.returncode
-        seen["replay_stderr"] = err.strip().splitlines()[-5:]
+        seen["replay"], seen["replay_exit"], seen["replay_stderr"] = replay_while_spinning(
+            bag, topics, rate, timeout, executor, log_dir, clock_subscribers=1)
         seen["node_cpu_s_at_replay_end"] = process_cpu_seconds(node_pid)
         settle, last, quiet_since = time.monotonic() + settle_timeout, None, time.monotonic()
         while time.monotonic() < settle:          # until the node has used everything queued
