@@ -11,7 +11,7 @@ from online_em_slam.core.config import MotionConfig, NoiseLearningConfig, replac
 from online_em_slam.core.em.noise.motion_gains import MotionGains, gain_statistic, transported
 from online_em_slam.core.em.noise.motion_noise import MotionSteps, compound
 from online_em_slam.core.filter.slam import OnlineEMSlam
-from online_em_slam.core.models.motion import integrate_segments, propagate, scaled_noise
+from online_em_slam.core.models.motion import GAIN_NAMES, integrate_segments, propagate, scaled_noise
 from online_em_slam.experiments.simulation import ScenarioConfig, simulate, slam_config_for
 
 
@@ -31,6 +31,16 @@ def test_the_gains_multiply_the_motion_input(model, control, scaled):
                                                   np.full(2, 0.1))[0], rtol=1e-12)
 
 
+def test_a_turn_in_place_takes_the_in_place_gain_and_a_turn_while_driving_the_rotation_gain():
+    config = MotionConfig(model="unicycle")
+    calibrated = replace(config, translation_gain=0.9, rotation_gain=0.6, rotation_in_place_gain=1.1)
+    pose, zero = np.array([[1.0, 2.0, 0.5]]), np.zeros((1, 3, 3))
+    controls, dts = np.array([[0.0, 0.5], [0.2, 0.5], [0.0, -0.3]]), np.full(3, 0.1)
+    expected = controls * np.array([[0.9, 1.1], [0.9, 0.6], [0.9, 1.1]])
+    np.testing.assert_allclose(integrate_segments(calibrated, pose, zero, controls, dts)[0],
+                               integrate_segments(config, pose, zero, expected, dts)[0], rtol=1e-12)
+
+
 def test_scaled_noise_scales_the_covariance_and_keeps_the_config_at_one():
     config = MotionConfig(model="unicycle")
     pose, u = np.array([[0.0, 0.0, 0.3]]), np.array([1.0, 0.2])
@@ -44,11 +54,13 @@ def test_the_filters_sensitivity_to_the_gains_is_the_finite_difference_of_a_fres
     carried sensitivity equals (mean(gain + h) - mean(gain - h)) / 2h over all of them at once."""
     scenario = simulate(ScenarioConfig(seed=2, n_steps=30))
     config = slam_config_for(scenario, num_particles=5)
-    config = replace_section(config, noise_learning=NoiseLearningConfig(enabled=True, learn=("motion_gains",)))
+    config = replace_section(config, motion=replace(config.motion, model="unicycle"),   # it can turn in place
+                             noise_learning=NoiseLearningConfig(enabled=True,
+                                                                learn=("motion_gains", "motion_gain_in_place")))
     slam = OnlineEMSlam(config, initial_pose=scenario.initial_pose)
     slam.add_observations(0.0, scenario.steps[0].observations())
     start = slam._motion.pose.copy()
-    controls = [(0.1 * k, np.array([3.0, 0.1 + 0.05 * k])) for k in range(1, 9)]
+    controls = [(0.1 * k, np.array([3.0 if k % 3 else 0.0, 0.1 + 0.05 * k])) for k in range(1, 9)]  # 2 in place
     for k, (t, u) in enumerate(controls):
         slam.add_control(t, u)
         if k == 3:
@@ -56,11 +68,13 @@ def test_the_filters_sensitivity_to_the_gains_is_the_finite_difference_of_a_fres
     slam.pose()
     dts = np.diff([0.0] + [t for t, _ in controls])[1:]
     us = np.array([u for _, u in controls])[:-1]
-    expected = np.empty((3, 2))
-    for j, name in enumerate(("translation_gain", "rotation_gain")):
-        ends = [integrate_segments(replace(config.motion, **{name: 1.0 + h}), start[None], np.zeros((1, 3, 3)),
+    expected = np.empty((3, len(GAIN_NAMES)))
+    learned = replace(config.motion, rotation_in_place_gain=1.0)   # learned, a gain of its own
+    for j, name in enumerate(GAIN_NAMES):
+        ends = [integrate_segments(replace(learned, **{name: 1.0 + h}), start[None], np.zeros((1, 3, 3)),
                                    us, dts)[0][0] for h in (1e-5, -1e-5)]
         expected[:, j] = (ends[0] - ends[1]) / 2e-5
+    assert np.all(np.abs(expected[2, 1:]) > 0.01)          # both turning gains turn the track
     np.testing.assert_allclose(slam._motion.sensitivity, expected, rtol=1e-5, atol=1e-8)
 
 
@@ -131,3 +145,36 @@ def test_a_gain_is_used_once_known_or_once_the_data_reject_the_one_in_use():
                                   [True, False])
     np.testing.assert_array_equal(known(np.array([0.99, 1.2]), in_use, np.array([0.02, 0.2]), 0.03),
                                   [True, False])
+
+
+def test_a_gain_no_window_excited_stays_and_the_others_are_solved_without_it():
+    """Three gains, the third (turning in place) never excited (its sensitivity zero): its
+    estimate is NaN with an infinite error, the other two are the two-gain solution."""
+    rng = np.random.default_rng(2)
+    L = 4
+    steps = MotionSteps(np.zeros((L + 1, 3)), np.broadcast_to(np.eye(3), (L + 1, 3, 3)).copy(),
+                        np.broadcast_to(1e-3 * np.eye(3), (L + 1, 3, 3)).copy(), np.zeros((L + 1, 3, 3)),
+                        np.broadcast_to(1e-3 * np.eye(3), (L + 1, 3, 3)).copy())
+    D2 = 0.3 * rng.normal(size=(L + 1, 3, 2))
+    D3 = np.concatenate([D2, np.zeros((L + 1, 3, 1))], axis=-1)
+    H_x, noise = rng.normal(size=(2, 2, 3)), np.broadcast_to(np.diag([0.01, 0.001]), (2, 2, 2)).copy()
+    two, three = MotionGains(1.0, window=1), MotionGains(1.0, window=1)
+    for _ in range(50):
+        nu = 0.1 * rng.normal(size=(2, 2))
+        two.blend(gain_statistic(steps, D2, H_x, nu, noise, 1.0, np.ones(2)))
+        three.blend(gain_statistic(steps, D3, H_x, nu, noise, 1.0, np.ones(3)))
+    (g2, e2), (g3, e3) = two.estimate(), three.estimate()
+    np.testing.assert_allclose(g3[:2], g2, rtol=1e-10)
+    np.testing.assert_allclose(e3[:2], e2, rtol=1e-10)
+    assert np.isnan(g3[2]) and e3[2] == np.inf
+
+
+def test_an_in_place_gain_of_zero_is_the_rotation_gain_and_learning_it_needs_motion_gains():
+    config = replace(MotionConfig(model="unicycle"), translation_gain=0.9, rotation_gain=0.6)
+    pose, zero, dts = np.array([[1.0, 2.0, 0.5]]), np.zeros((1, 3, 3)), np.full(2, 0.1)
+    controls = np.array([[0.0, 0.5], [0.2, 0.5]])
+    np.testing.assert_array_equal(integrate_segments(config, pose, zero, controls, dts)[0],
+                                  integrate_segments(replace(config, rotation_in_place_gain=0.6), pose, zero,
+                                                     controls, dts)[0])
+    with pytest.raises(ValueError, match="motion_gain_in_place"):
+        NoiseLearningConfig(enabled=True, learn=("motion_gain_in_place",)).validate()

@@ -63,6 +63,11 @@ class MotionConfig:
                                     "the translation increment) is multiplied by this.")
     rotation_gain: float = param(1.0, 0.1, 10.0, doc="Calibration of the motion input: the steering angle or "
                                  "yaw rate (odometry: the rotation increment) is multiplied by this.")
+    rotation_in_place_gain: float = param(0.0, 0.0, 10.0, doc="Calibration of the motion input: the yaw rate "
+                                          "(or steering angle) commanded at zero speed, a turn in place, is "
+                                          "multiplied by this instead of rotation_gain (a differential drive's "
+                                          "controllers can deliver a turn in place and one while driving in "
+                                          "different shares; not the odometry model). 0: rotation_gain.")
     sigma_speed: float = param(0.5, *_STD, doc="Speed noise std (m/s) over noise_reference_period.")
     sigma_steering: float = param(math.pi / 60, *_STD, doc="Steering angle / yaw rate noise std (rad, rad/s) "
                                   "over noise_reference_period.")

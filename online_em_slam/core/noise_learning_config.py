@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from .config_fields import check_fields, check_length, check_range, param, param_info
 
 LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "dof", "range_growth", "serial_correlation",
-                   "motion_scale", "motion_gains", "motion_shape")
+                   "motion_scale", "motion_gains", "motion_gain_in_place", "motion_shape")
 
 
 @dataclass
@@ -67,8 +67,10 @@ class NoiseLearningConfig:
                                    "student_t), range_growth, serial_correlation, motion_scale, motion_shape (a "
                                    "scale per motion noise group: speed and turning, constant and relative "
                                    "to the control, instead of motion_scale), motion_gains (the "
-                                   "calibration of the motion input: motion.translation_gain, rotation_gain). "
-                                   "To learn nothing set enabled false.")
+                                   "calibration of the motion input: motion.translation_gain, "
+                                   "rotation_gain), motion_gain_in_place (with motion_gains: a third gain, "
+                                   "motion.rotation_in_place_gain, for turns in place; not the default of "
+                                   "any data set, docs/RESULTS.md). To learn nothing set enabled false.")
     step_size_exponent: float = param(0.7, 0.5, 1.0, lo_open=True, doc="Step size gamma_n = n^-exponent of the "
                                       "noise statistics.")
     motion_step_size_exponent: float = param(1.0, 0.5, 1.0, lo_open=True, doc="Step size exponent of the motion "
@@ -110,8 +112,8 @@ class NoiseLearningConfig:
                                                      "motion covariance), floor <= ceiling.")
 
     motion_gain_limits: tuple[float, float] = param((0.25, 4.0), 0.1, 10.0, doc="Floor and ceiling of the "
-                                                    "learned motion gains (motion.translation_gain, "
-                                                    "rotation_gain), floor <= ceiling.")
+                                                    "learned motion gains (motion.translation_gain, rotation_gain, "
+                                                    "rotation_in_place_gain), floor <= ceiling.")
     motion_gain_tolerance: float = param(0.03, 0.0, 1.0, lo_open=True, doc="The learned motion gains are used "
                                          "once their standard errors are below this, or once the estimate is "
                                          "three standard errors from the gain in use (and warmup_steps have "
@@ -123,6 +125,8 @@ class NoiseLearningConfig:
     def validate(self, prefix: str = "noise_learning") -> None:
         if isinstance(self.learn, str):
             raise ValueError(f"{prefix}.learn = {self.learn!r} must be a list of names of {', '.join(LEARNABLE_NOISE)}")
+        if "motion_gain_in_place" in self.learn and "motion_gains" not in self.learn:
+            raise ValueError(f"{prefix}.learn: motion_gain_in_place is a third motion gain, learned with motion_gains")
         for name in self._LIMITS:
             check_length(f"{prefix}.{name}", getattr(self, name), 2, " (floor, ceiling)")
         check_fields(self, prefix)

@@ -29,7 +29,7 @@ class FilterStepData:
     precision (N, P, 2, 2) R^-1 weighted by the mixture responsibilities;
     motion_mean (3,), motion_jacobian (3, 3), motion_cov (3, 3): the transition of
     the previous weighted mean pose (the linearisation track of the observed M-step);
-    motion_gain_sensitivity (3, 2): d motion_mean / d (translation_gain, rotation_gain),
+    motion_gain_sensitivity (3, G): d motion_mean / d the gains (models/motion.py, GAIN_NAMES),
     when it learns the gains.
     """
 

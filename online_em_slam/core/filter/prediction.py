@@ -18,10 +18,11 @@ from ..models.angles import wrap_angle
 
 class PendingMotion:
     """Queued segments (``controls``, ``dts``) and the track since the last filter step:
-    ``pose`` (3,), ``cov`` (3, 3), ``jacobian`` (3, 3) and ``sensitivity`` (3, 2), d pose / d
-    (translation_gain, rotation_gain)."""
+    ``pose`` (3,), ``cov`` (3, 3), ``jacobian`` (3, 3) and ``sensitivity`` (3, G), d pose / d
+    the G gains the noise learner learns (none: G = 0)."""
 
-    def __init__(self, pose: np.ndarray) -> None:
+    def __init__(self, pose: np.ndarray, n_gains: int = 0) -> None:
+        self.n_gains = n_gains
         self.controls: list[np.ndarray] = []
         self.dts: list[float] = []
         # The track's covariance from each noise group (learner.motion_parts; sized at first use).
@@ -34,13 +35,13 @@ class PendingMotion:
         self.jacobian = np.eye(3)
         self.cov = np.zeros((3, 3))
         self.cov_parts = np.zeros_like(self.cov_parts)
-        self.sensitivity = np.zeros((3, 2))
+        self.sensitivity = np.zeros((3, self.n_gains))
 
     def queue(self, control: np.ndarray, dt: float) -> None:
         self.controls.append(control)
         self.dts.append(dt)
 
-    def flush(self, config: MotionConfig, learns_gains: bool, means: np.ndarray, covs: np.ndarray,
+    def flush(self, config: MotionConfig, gains: tuple[str, ...], means: np.ndarray, covs: np.ndarray,
               drops: Counter, parts: tuple | None = None) -> tuple[np.ndarray, np.ndarray] | None:
         """The particles' transitions (``means`` (N, 3), ``covs`` (N, 3, 3)) moved by the queued
         segments under ``config``, and the track with them; None when nothing is queued, or
@@ -51,7 +52,7 @@ class PendingMotion:
         poses = np.vstack([means, self.pose])
         covs = np.concatenate([covs, self.cov[None]])
         mean, cov, F = motion_models.integrate_segments(config, poses, covs, controls, dts, with_jacobian=True)
-        sensitivity = (self._gain_sensitivity(config, controls, dts, mean[-1], F[-1]) if learns_gains
+        sensitivity = (self._gain_sensitivity(config, gains, controls, dts, mean[-1], F[-1]) if gains
                        else self.sensitivity)
         cov_parts = self.cov_parts
         if parts is not None:            # the track's covariance split by noise group (motion shape learned)
@@ -72,14 +73,14 @@ class PendingMotion:
         self.sensitivity = sensitivity
         return mean[:-1], cov[:-1]
 
-    def _gain_sensitivity(self, config: MotionConfig, controls: np.ndarray, dts: np.ndarray, moved: np.ndarray,
-                          jacobian: np.ndarray) -> np.ndarray:
-        """d track mean / d (translation_gain, rotation_gain) since the last filter step (3, 2):
+    def _gain_sensitivity(self, config: MotionConfig, gains: tuple[str, ...], controls: np.ndarray, dts: np.ndarray,
+                          moved: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
+        """d track mean / d ``gains`` (names of MotionConfig's) since the last filter step (3, G):
         the earlier segments' carried by this flush's Jacobian, plus this flush's, by a forward
         difference of the motion integration (``moved``: the track's mean after it)."""
         pose = self.pose[None]
-        D = np.empty((3, 2))
-        for j, name in enumerate(("translation_gain", "rotation_gain")):
+        D = np.empty((3, len(gains)))
+        for j, name in enumerate(gains):
             step = 1e-6 * getattr(config, name)
             nudged = replace(config, **{name: getattr(config, name) + step})
             D[:, j] = (motion_models.integrate_segments(nudged, pose, np.zeros((1, 3, 3)), controls, dts)[0][0]

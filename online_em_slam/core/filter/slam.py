@@ -89,7 +89,6 @@ class OnlineEMSlam:
         self._log_w = np.full(n, -np.log(n))
         self._pred_mean = self._particles.copy()
         self._pred_cov = np.zeros((n, 3, 3))
-        self._motion = PendingMotion(pose)       # queued segments and the mean pose's track (prediction.py)
         self._resample_pending = False
         self._relocalising = False               # after a map load: no landmark created until localised
         self._input = MotionInput(cfg.motion, self.drops, stamp)
@@ -99,6 +98,8 @@ class OnlineEMSlam:
         self._map = LandmarkTable()
         self._m_step: MStep = self._m_step_factory(cfg, pose, self._rng)
         self._noise = NoiseLearner(cfg)          # learned noise (em/noise/learner.py); configured until warm
+        # Queued segments and the mean pose's track (prediction.py).
+        self._motion = PendingMotion(pose, len(self._noise.gains_learned))
         # The warm-up's inputs, filtered again once the learned noise is in use (warmup.py).
         replay = cfg.noise_learning.replay_warmup and bool(self._noise.learn)
         self._warmup = WarmupReplay(replay, cfg.noise_learning.max_replay_inputs, (pose.copy(), stamp))
@@ -194,7 +195,7 @@ class OnlineEMSlam:
 
     def _flush_motion(self) -> None:
         """Compound the queued control segments into the transition (T) in one pass (prediction.py)."""
-        moved = self._motion.flush(self._noise.motion_config(), self._noise.learns_gains, self._pred_mean,
+        moved = self._motion.flush(self._noise.motion_config(), self._noise.gains_learned, self._pred_mean,
                                    self._pred_cov, self.drops, self._noise.motion_parts())
         if moved is not None:
             self._pred_mean, self._pred_cov = moved

@@ -211,14 +211,33 @@ MODELS = {name: globals()[name] for name in MOTION_MODELS}
 SEGMENT_PARTS = {name: (globals()[f"_{name}_segment"], globals()[f"_{name}_moves"]) for name in MOTION_MODELS}
 
 
+# The motion model's gains (calibrated), in the order the noise learner estimates them; the
+# third only when it learns motion_gain_in_place.
+GAIN_NAMES = ("translation_gain", "rotation_gain", "rotation_in_place_gain")
+# A commanded speed below this (m/s) is a turn in place (rotation_in_place_gain).
+IN_PLACE_SPEED = 1e-3
+
+
+def gain(config: MotionConfig, name: str) -> float:
+    """The gain ``name`` in use: rotation_in_place_gain 0 is the rotation gain."""
+    value = getattr(config, name)
+    return config.rotation_gain if name == "rotation_in_place_gain" and value == 0.0 else value
+
+
 def calibrated(config: MotionConfig, control: np.ndarray) -> np.ndarray:
     """The motion input times its gains: (speed, steering or yaw rate) by (translation_gain,
-    rotation_gain); an odometry increment (dx, dy, dphi) by (translation, translation, rotation)."""
+    rotation_gain), the turning by rotation_in_place_gain where the speed is below
+    IN_PLACE_SPEED; an odometry increment (dx, dy, dphi) by (translation, translation, rotation)."""
     control = np.asarray(control, dtype=float)
-    if config.translation_gain == 1.0 and config.rotation_gain == 1.0:
+    t, r, r0 = config.translation_gain, config.rotation_gain, gain(config, "rotation_in_place_gain")
+    if t == 1.0 and r == 1.0 and r0 == 1.0:
         return control
-    t, r = config.translation_gain, config.rotation_gain
-    return control * (np.array([t, t, r]) if control.shape[-1] == 3 else np.array([t, r]))
+    if control.shape[-1] == 3:
+        return control * np.array([t, t, r])
+    if r0 == r:
+        return control * np.array([t, r])
+    turn = np.where(np.abs(control[..., 0]) < IN_PLACE_SPEED, r0, r)
+    return np.stack([control[..., 0] * t, control[..., 1] * turn], axis=-1)
 
 
 def propagate(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):

@@ -38,8 +38,8 @@ import numpy as np
 
 from ...config import ObservationNoiseConfig, SlamConfig
 from ...models.angles import wrap_angle
-from ...models.motion import (ROTATION_STDS, TRANSLATION_STDS, scaled_groups, scaled_noise, shape_basis,
-                              shape_groups, step_jitter)
+from ...models.motion import (GAIN_NAMES, ROTATION_STDS, TRANSLATION_STDS, gain, scaled_groups, scaled_noise,
+                              shape_basis, shape_groups, step_jitter)
 from ...models.observation import information_noise, noise_covariance
 from ..observed_information import motion_residual
 from ..step import FilterStepData
@@ -97,10 +97,11 @@ class NoiseLearner:
         # The calibration of the motion input (motion_gains.py): the gains in use.
         self.gains = (MotionGains(self.settings.motion_step_size_exponent, self.settings.motion_window)
                       if "motion_gains" in learn else None)
-        self.sensitivities = np.zeros((self.settings.motion_window + 1, 3, 2))
-        self.gains_in_use = np.array([config.motion.translation_gain, config.motion.rotation_gain])
-        self.gains_estimate, self.gain_errors = self.gains_in_use.copy(), np.full(2, math.inf)
-        self._gain_warm = np.zeros(2, dtype=bool)        # each gain in use once known to the tolerance
+        self.gain_names = GAIN_NAMES if "motion_gain_in_place" in learn else GAIN_NAMES[:2]
+        self.gains_in_use = np.array([gain(config.motion, name) for name in self.gain_names])
+        self.sensitivities = np.zeros((self.settings.motion_window + 1, 3, len(self.gain_names)))
+        self.gains_estimate, self.gain_errors = self.gains_in_use.copy(), np.full(len(self.gain_names), math.inf)
+        self._gain_warm = np.zeros(len(self.gain_names), dtype=bool)   # each in use once known to the tolerance
         self._motion_config = (None, None)                # (gains and scales, the motion config with them)
         self._gains_config_made = (None, None)            # (gains, the configured motion config with them)
         # The motion noise's shape (motion_shape): one scale per noise group (models/motion.py
@@ -216,8 +217,9 @@ class NoiseLearner:
         return self._parts_config[1]
 
     @property
-    def learns_gains(self) -> bool:
-        return self.gains is not None
+    def gains_learned(self) -> tuple[str, ...]:
+        """Names of the motion gains learned (none: ())."""
+        return self.gain_names if self.gains is not None else ()
 
     def motion_config(self):
         """The motion config to integrate with: the configured one with the gains in use
@@ -233,12 +235,12 @@ class NoiseLearner:
         """The configured motion config with the gains in use (made again only when they change)."""
         key = tuple(self.gains_in_use)
         if self._gains_config_made[0] != key:
-            self._gains_config_made = (key, replace(self.config.motion, translation_gain=float(self.gains_in_use[0]),
-                                                    rotation_gain=float(self.gains_in_use[1])))
+            self._gains_config_made = (key, replace(self.config.motion, **{
+                name: float(value) for name, value in zip(self.gain_names, self.gains_in_use)}))
         return self._gains_config_made[1]
 
     def gains_known(self) -> np.ndarray:
-        """The gains' estimates where known to the tolerance, else the gains in use (2,)."""
+        """The gains' estimates where known to the tolerance, else the gains in use (G,)."""
         return np.where(self._gain_warm, self.gains_estimate, self.gains_in_use)
 
     # ------------------------------------------------------------ E-step
@@ -388,7 +390,9 @@ class NoiseLearner:
         if result is None:
             return
         estimate, self.gain_errors = result
-        self.gains_estimate = np.clip(estimate, *self.settings.motion_gain_limits)
+        # A gain no window excited (NaN: never turned in place) keeps the one in use.
+        self.gains_estimate = np.where(np.isnan(estimate), self.gains_in_use,
+                                       np.clip(estimate, *self.settings.motion_gain_limits))
         if self.gains.count >= self.settings.warmup_steps:
             self._gain_warm |= known(self.gains_estimate, self.gains_in_use, self.gain_errors,
                                      self.settings.motion_gain_tolerance)
@@ -443,7 +447,7 @@ class NoiseLearner:
     def parameters(self) -> dict:
         """The values in use as flat node parameters (noise.*, motion.* standard deviations),
         the form of a parameter file: the motion scale s is folded into the stds (x sqrt(s)); the
-        learned gains are motion.translation_gain and rotation_gain."""
+        learned gains are motion.translation_gain, rotation_gain (and rotation_in_place_gain)."""
         noise = self._in_use
         values = {"noise.model": noise.model, "noise.sigma_range": noise.sigma_range,
                   "noise.sigma_bearing": noise.sigma_bearing, "noise.rho": noise.rho,
@@ -455,8 +459,7 @@ class NoiseLearner:
                   else scaled_noise(self.config.motion, self.motion_scale(), self.motion_scale()))
         values.update({f"motion.{name}": getattr(motion, name) for name in TRANSLATION_STDS + ROTATION_STDS})
         if self.gains is not None:
-            values.update({"motion.translation_gain": float(self.gains_in_use[0]),
-                           "motion.rotation_gain": float(self.gains_in_use[1])})
+            values.update({f"motion.{name}": float(value) for name, value in zip(self.gain_names, self.gains_in_use)})
         return values
 
 

@@ -4,9 +4,12 @@ Wheel radii, track widths and commanded velocities are rarely what the data
 sheet says: a robot that turns 0.6 times its commanded yaw rate (UTIAS MRCLAM,
 Dataset 9) makes a heading error that grows with every turn, which no noise
 model explains.  The gains kappa = (translation_gain, rotation_gain) of the
-motion model (models/motion.py, ``calibrated``) are parameters of the HMM like
-the map, and the same window as the motion scale's statistic (M) estimates
-them: the pose predicted open loop over the last L filter steps,
+motion model (models/motion.py, ``calibrated``; with ``motion_gain_in_place``
+also rotation_in_place_gain, for a robot whose controllers deliver a turn in
+place and a turn while driving in different shares: 1.0 and 0.6 on Dataset 9)
+are parameters of the HMM like the map, and the same window as the motion
+scale's statistic (M) estimates them: the pose predicted open loop over the
+last L filter steps,
 x_pred(kappa) = xbar_t + C(kappa), gives the scan's prediction error
 
     nu(kappa) = nu_t - B_t (kappa - kappa_t),   B_t = H_x sum_k Phi(t, k) D_k          (G)
@@ -18,8 +21,9 @@ equations N kappa = h, averaged over scans:
 
     N = mean_t B_t^T S_t^-1 B_t,   h = mean_t B_t^T S_t^-1 (nu_t + B_t kappa_t).
 
-A robot standing still or never turning informs neither gain (N singular):
-they then stay where they are.
+A gain no window has excited (a robot that never turns in place) has no row in N:
+it stays where it is, and the others are solved without it; while the informed
+ones are not separable (N singular) all stay.
 """
 from __future__ import annotations
 
@@ -28,7 +32,7 @@ import numpy as np
 from .averages import StochasticAverage
 from .motion_noise import MotionSteps, block_diagonal, compound
 
-MAX_CONDITION = 1e6                   # N (unit diagonal) solved only when both gains are informed
+MAX_CONDITION = 1e6                   # N (unit diagonal) of the informed gains solved only below this
 # A learned gain replaces the one in use once they differ by this many standard errors.
 REJECTION = 3.0
 
@@ -44,11 +48,11 @@ def transported(F: np.ndarray, terms: np.ndarray) -> np.ndarray:
 
 def gain_statistic(steps: MotionSteps, D: np.ndarray, pose_jacobian: np.ndarray, innovation: np.ndarray,
                    noise_cov: np.ndarray, scale: float, gains: np.ndarray) -> np.ndarray | None:
-    """z = (N_t (2, 2) flattened, h_t (2,)) of (G) for the scan at the window's end.
+    """z = (N_t (G, G) flattened, h_t (G,)) of (G) for the scan at the window's end.
 
     ``steps`` as for motion_noise.prediction_statistic (Q over the scale in use), ``D``
-    (L, 3, 2) each step's sensitivity of the mean pose to the gains, ``gains`` the gains
-    in use (2,), ``scale`` the motion scale in use.
+    (L, 3, G) each step's sensitivity of the mean pose to the gains, ``gains`` the gains
+    in use (G,), ``scale`` the motion scale in use.
     """
     C, Q, J, Phi = compound(steps[1:])
     Hx = pose_jacobian.reshape(-1, 3)
@@ -80,20 +84,28 @@ class MotionGains:
         self.average.blend(z)
 
     def estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(gains (2,), their standard errors (2,)) from the averages, None while N is singular."""
+        """(gains (G,), their standard errors (G,)) from the averages: NaN and an infinite error
+        for a gain no window excited; None while the informed ones are not separable."""
         if self.average.value is None:
             return None
-        N, h = self.average.value[:4].reshape(2, 2), self.average.value[4:]
-        d = np.sqrt(np.maximum(np.diag(N), 1e-300))
+        g = int(round((np.sqrt(4 * self.average.value.size + 1) - 1) / 2))   # G^2 + G values
+        N, h = self.average.value[:g * g].reshape(g, g), self.average.value[g * g:]
+        informed = np.diag(N) > 0.0
+        if not informed.any():
+            return None
+        N, h = N[np.ix_(informed, informed)], h[informed]
+        d = np.sqrt(np.diag(N))
         if not np.linalg.cond(N / np.outer(d, d)) < MAX_CONDITION:
             return None
         N_inv = np.linalg.inv(N)
         variance = self.window * self.average.squared_weights * np.diag(N_inv)
-        return N_inv @ h, np.sqrt(np.maximum(variance, 0.0))
+        estimate, error = np.full(g, np.nan), np.full(g, np.inf)
+        estimate[informed], error[informed] = N_inv @ h, np.sqrt(np.maximum(variance, 0.0))
+        return estimate, error
 
 
 def known(estimate: np.ndarray, in_use: np.ndarray, errors: np.ndarray, tolerance: float) -> np.ndarray:
-    """Which gains to use (2,): known to ``tolerance``, or the data reject the gain in use by
+    """Which gains to use (G,): known to ``tolerance``, or the data reject the gain in use by
     more than REJECTION standard errors (a command's calibration can be far off, 0.6 on MRCLAM
     Dataset 9, and yet not known to the tolerance in a whole run: the regimes of turning in
     place and while driving differ)."""
