@@ -158,7 +158,7 @@ def test_a_gain_no_window_excited_stays_and_the_others_are_solved_without_it():
     D2 = 0.3 * rng.normal(size=(L + 1, 3, 2))
     D3 = np.concatenate([D2, np.zeros((L + 1, 3, 1))], axis=-1)
     H_x, noise = rng.normal(size=(2, 2, 3)), np.broadcast_to(np.diag([0.01, 0.001]), (2, 2, 2)).copy()
-    two, three = MotionGains(1.0, window=1), MotionGains(1.0, window=1)
+    two, three = MotionGains(1.0, window=1), MotionGains(1.0, window=1, n_gains=3)
     for _ in range(50):
         nu = 0.1 * rng.normal(size=(2, 2))
         two.blend(gain_statistic(steps, D2, H_x, nu, noise, 1.0, np.ones(2)))

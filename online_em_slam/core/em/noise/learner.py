@@ -95,9 +95,9 @@ class NoiseLearner:
         self.scale_in_use = 1.0
         self._motion_warm = False
         # The calibration of the motion input (motion_gains.py): the gains in use.
-        self.gains = (MotionGains(self.settings.motion_step_size_exponent, self.settings.motion_window)
-                      if "motion_gains" in learn else None)
         self.gain_names = GAIN_NAMES if "motion_gain_in_place" in learn else GAIN_NAMES[:2]
+        self.gains = (MotionGains(self.settings.motion_step_size_exponent, self.settings.motion_window,
+                                  len(self.gain_names)) if "motion_gains" in learn else None)
         self.gains_in_use = np.array([gain(config.motion, name) for name in self.gain_names])
         self.sensitivities = np.zeros((self.settings.motion_window + 1, 3, len(self.gain_names)))
         self.gains_estimate, self.gain_errors = self.gains_in_use.copy(), np.full(len(self.gain_names), math.inf)

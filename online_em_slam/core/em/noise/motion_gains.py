@@ -70,11 +70,12 @@ def gain_statistic(steps: MotionSteps, D: np.ndarray, pose_jacobian: np.ndarray,
 
 
 class MotionGains:
-    """The average of (G)'s normal equations; the gains, their standard errors."""
+    """The average of (G)'s normal equations for ``n_gains`` gains; the gains, their standard errors."""
 
-    def __init__(self, alpha: float, window: int) -> None:
+    def __init__(self, alpha: float, window: int, n_gains: int = 2) -> None:
         self.average = StochasticAverage(alpha)
         self.window = window              # consecutive windows share all but one step: variance x L
+        self.n_gains = n_gains
 
     @property
     def count(self) -> int:
@@ -88,7 +89,7 @@ class MotionGains:
         for a gain no window excited; None while the informed ones are not separable."""
         if self.average.value is None:
             return None
-        g = int(round((np.sqrt(4 * self.average.value.size + 1) - 1) / 2))   # G^2 + G values
+        g = self.n_gains
         N, h = self.average.value[:g * g].reshape(g, g), self.average.value[g * g:]
         informed = np.diag(N) > 0.0
         if not informed.any():
