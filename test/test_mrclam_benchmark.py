@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from online_em_slam.datasets.mrclam import benchmark
+from online_em_slam.datasets.mrclam.paired import paired_markdown, pairs_by_method
 from online_em_slam.datasets.mrclam.table import best_cell, cells, results_markdown
 
 N_LANDMARKS = 15
@@ -161,3 +162,34 @@ def test_better_noise_setting_and_summary():
     assert "0.110 ± 0.010 · 15/15 · 0" in text and "0.200 (L) · 15/15 · 1" in text
     assert "FastSLAM 2.0: 1 of 1 runs" in text and "ratio (mean over runs): 2.75 over 1 runs" in text
     assert "online_em 15/15 ✓, 0 spurious ✓; fastslam2 15/15 ✓, 1 spurious ✗" in text
+
+
+def test_paired_differences_pair_run_method_noise_and_seed():
+    """B - A over the pairs done in both: a failed item, a seed in one file only and another
+    method are left out; the mean and standard error are those of the per-pair differences."""
+    def rec(run, seed, shape, status="ok", method="online_em"):
+        return {"kind": "run", "status": status, "run": run, "method": method, "noise": "params", "seed": seed,
+                "landmark_shape": shape, "landmark_rmse": 2 * shape, "trajectory_rmse": 0.5, "matched": 15}
+    a = [rec("1_r1", 0, 0.10), rec("1_r1", 1, 0.12), rec("9_r4", 0, 0.20), rec("9_r4", 1, 0.30, status="failed"),
+         rec("9_r4", 2, 0.25)]
+    b = [rec("1_r1", 0, 0.08), rec("1_r1", 1, 0.13), rec("9_r4", 0, 0.26), rec("9_r4", 1, 0.10),
+         rec("1_r1", 0, 0.50, method="ekf_slam")]
+    groups = pairs_by_method(a, b)
+    assert list(groups) == [("online_em", "params")] and len(groups["online_em", "params"]) == 3
+    diffs = np.array([0.08 - 0.10, 0.13 - 0.12, 0.26 - 0.20])
+    text = paired_markdown(a, b)
+    assert f"paired difference {diffs.mean():+.4f} ± {diffs.std(ddof=1) / np.sqrt(3):.4f}" in text
+    assert "| 1_r1 | 2 | 0.110 -> 0.105 |" in text and "| 9_r4 | 1 | 0.200 -> 0.260 |" in text
+    assert "B's shape below A's on 1 of 2 runs" in text
+    assert "No work item is done in both files." in paired_markdown(a, [])
+
+
+def test_compare_prints_the_paired_differences_of_two_results_files(sweep, capsys):
+    out, _, _ = sweep
+    capsys.readouterr()
+    results = str(out / "results.json")
+    assert benchmark.main(["--compare", results, results]) == 0
+    text = capsys.readouterr().out
+    assert "### online_em (params noise)" in text and "paired difference +0.0000 (one pair" in text
+    assert benchmark.main(["--compare", results, str(out / "missing.json")]) == 1
+    assert "error: --compare" in capsys.readouterr().err

@@ -4,6 +4,8 @@
         [--datasets 1 9] [--robots 1 2 3 4 5] [--seconds 600]   (0 = full length; several allowed)
         [--seeds 0 1 2 3 4] [--ids known unknown] [--methods online_em online_em_complete ekf_slam
         fastslam2 marginal_slam batch] [--params config/mrclam.yaml ...] [--jobs 2] [--particles N]
+        [--compare-with A/results.json]
+    online-em-slam-mrclam-benchmark --compare A/results.json B/results.json
 
 For every run (dataset, robot, seconds, ids) the bag is converted once into
 ``OUTPUT/bags/<run>/`` (an existing bag is reused), then every method runs on it
@@ -27,6 +29,9 @@ Work items run in ``--jobs`` spawned worker processes with one BLAS thread each;
 existing metrics.json is reused (an interrupted sweep resumes).  Plots only for the
 first seed of online_em and ekf_slam.  Writes ``OUTPUT/results.json`` (every work item)
 and ``OUTPUT/results.md`` (tables: :mod:`online_em_slam.datasets.mrclam.table`), and prints the markdown.
+``--compare-with FILE`` then prints the paired differences of this run against another
+results.json (the same runs, methods and seeds; :mod:`online_em_slam.datasets.mrclam.paired`),
+``--compare A B`` those of two existing files, without running anything.
 """
 from __future__ import annotations
 
@@ -39,6 +44,7 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from .paired import compare_files
 from .table import DONE, METHODS, TWO_NOISE, results_markdown
 
 MATCH_GATE = 1.0
@@ -340,9 +346,9 @@ def run_all(items: list[Item], jobs: int, log=print) -> list[dict]:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="online-em-slam-mrclam-benchmark", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
-    parser.add_argument("--data-dir", required=True,
+    parser.add_argument("--data-dir",
                         help="directory holding MRCLAM_DatasetN directories or MRCLAM_DatasetN.tar.xz archives")
-    parser.add_argument("--output", required=True, help="output directory (bags/, runs/, results.json, results.md)")
+    parser.add_argument("--output", help="output directory (bags/, runs/, results.json, results.md)")
     parser.add_argument("--datasets", type=int, nargs="+", default=[1, 9])
     parser.add_argument("--robots", type=int, nargs="+", default=[1, 2, 3, 4, 5], choices=range(1, 6))
     parser.add_argument("--seconds", type=int, nargs="+", default=[600], help="first S seconds (0 = full length)")
@@ -355,6 +361,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--particles", type=int, default=None, help="override filter.num_particles")
     parser.add_argument("--rescore", action="store_true",
                         help="score the maps of existing runs again (current evaluation and survey; no re-run)")
+    parser.add_argument("--compare-with", metavar="FILE",
+                        help="after the run, the paired differences against another results.json (same seeds)")
+    parser.add_argument("--compare", nargs=2, metavar=("A", "B"),
+                        help="only print the paired differences B - A of two results.json files")
     return parser
 
 
@@ -363,7 +373,12 @@ def unique(values: list) -> list:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.compare:
+        return _print_comparison(*args.compare)
+    if not (args.data_dir and args.output):
+        parser.error("--data-dir and --output are required (unless --compare)")
     for name in ("datasets", "robots", "seconds", "seeds", "ids", "methods"):
         setattr(args, name, unique(getattr(args, name)))
     if min(args.seconds) < 0 or args.jobs < 1:
@@ -392,7 +407,18 @@ def main(argv: list[str] | None = None) -> int:
     (Path(args.output) / "results.md").write_text(text)
     print(text)
     failed = [r for r in records if r["status"] in ("failed", "skipped")]
-    return 1 if failed else 0
+    compared = _print_comparison(args.compare_with, str(Path(args.output) / "results.json")) if args.compare_with else 0
+    return 1 if failed or compared else 0
+
+
+def _print_comparison(path_a: str, path_b: str) -> int:
+    """Print the paired differences B - A; 1 with a message when a file cannot be read."""
+    try:
+        print(compare_files(path_a, path_b))
+    except (OSError, ValueError, KeyError) as error:
+        print(f"online-em-slam-mrclam-benchmark: error: --compare: {error}", file=sys.stderr)
+        return 1
+    return 0
 
 
 if __name__ == "__main__":
