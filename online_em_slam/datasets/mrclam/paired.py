@@ -18,8 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...experiments.benchmark_tables import mean_and_se
-from .table import DONE
+from .table import DONE, mean_se
 
 # (results.json key, column title, format): the scores compared.
 SCORES = (("landmark_shape", "shape (m)", "{:.3f}"), ("landmark_rmse", "ground-truth frame (m)", "{:.3f}"),
@@ -70,7 +69,7 @@ def format_group(method: str, noise: str, pairs: list[tuple[dict, dict]]) -> lis
     lines.append("")
     for key, title, fmt in SCORES:
         a, b = _score([p[0] for p in pairs], key), _score([p[1] for p in pairs], key)
-        mean, se = mean_and_se(b - a)
+        mean, se = mean_se(b - a)
         spread = f" ± {se:.4f}" if np.isfinite(se) else " (one pair: no standard error)"
         lines.append(f"- {title}: {fmt.format(np.nanmean(a))} -> {fmt.format(np.nanmean(b))}, "
                      f"paired difference {mean:+.4f}{spread}")
