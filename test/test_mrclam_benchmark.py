@@ -193,3 +193,14 @@ def test_compare_prints_the_paired_differences_of_two_results_files(sweep, capsy
     assert "### online_em (params noise)" in text and "paired difference +0.0000 (one pair" in text
     assert benchmark.main(["--compare", results, str(out / "missing.json")]) == 1
     assert "error: --compare" in capsys.readouterr().err
+
+
+def test_compare_with_after_a_run_prints_the_paired_differences(sweep, capsys):
+    """The resumed sweep (every item reused) against its own earlier results: zero differences."""
+    out, argv, _ = sweep
+    earlier = out.parent / "earlier.json"
+    earlier.write_text((out / "results.json").read_text())
+    capsys.readouterr()
+    assert benchmark.main(argv + ["--compare-with", str(earlier)]) == 0
+    text = capsys.readouterr().out
+    assert "## Paired differences" in text and "paired difference +0.0000 (one pair" in text

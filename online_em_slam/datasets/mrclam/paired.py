@@ -43,13 +43,10 @@ def pairs_by_method(runs_a: list[dict], runs_b: list[dict]) -> dict[tuple, list[
     return groups
 
 
-def _score(rows: list[dict], key: str) -> np.ndarray:
-    return np.array([np.nan if r.get(key) is None else r[key] for r in rows], dtype=float)
-
-
-def _cell(pairs: list[tuple[dict, dict]], key: str, fmt: str) -> str:
-    a, b = _score([p[0] for p in pairs], key), _score([p[1] for p in pairs], key)
-    return f"{fmt.format(np.nanmean(a))} -> {fmt.format(np.nanmean(b))}"
+def _scores(pairs: list[tuple[dict, dict]], key: str) -> tuple[np.ndarray, np.ndarray]:
+    """``key``'s values in A and in B over ``pairs`` (NaN where missing)."""
+    return tuple(np.array([np.nan if p[i].get(key) is None else p[i][key] for p in pairs], dtype=float)
+                 for i in (0, 1))
 
 
 def format_group(method: str, noise: str, pairs: list[tuple[dict, dict]]) -> list[str]:
@@ -62,13 +59,13 @@ def format_group(method: str, noise: str, pairs: list[tuple[dict, dict]]) -> lis
         by_run.setdefault(pair[0]["run"], []).append(pair)
     better = 0
     for run, run_pairs in by_run.items():
-        lines.append(f"| {run} | {len(run_pairs)} | "
-                     + " | ".join(_cell(run_pairs, key, fmt) for key, _, fmt in SCORES) + " |")
-        shape = [_score([p[i] for p in run_pairs], "landmark_shape").mean() for i in (0, 1)]
-        better += bool(shape[1] < shape[0])
+        means = {key: [np.nanmean(v) for v in _scores(run_pairs, key)] for key, _, _ in SCORES}
+        lines.append(f"| {run} | {len(run_pairs)} | " + " | ".join(
+            f"{fmt.format(means[key][0])} -> {fmt.format(means[key][1])}" for key, _, fmt in SCORES) + " |")
+        better += bool(means["landmark_shape"][1] < means["landmark_shape"][0])
     lines.append("")
     for key, title, fmt in SCORES:
-        a, b = _score([p[0] for p in pairs], key), _score([p[1] for p in pairs], key)
+        a, b = _scores(pairs, key)
         mean, se = mean_se(b - a)
         spread = f" ± {se:.4f}" if np.isfinite(se) else " (one pair: no standard error)"
         lines.append(f"- {title}: {fmt.format(np.nanmean(a))} -> {fmt.format(np.nanmean(b))}, "
