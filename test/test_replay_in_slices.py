@@ -35,12 +35,12 @@ def test_a_replay_in_slices_ends_where_the_replay_at_once_does():
 
 
 def test_a_fleet_replay_in_slices_ends_where_the_replay_at_once_does():
-    scenarios = fleet_scenarios(ScenarioConfig(n_steps=600, seed=0, outlier_probability=0.1, **TRUTH), 2)
+    scenarios = fleet_scenarios(ScenarioConfig(n_steps=700, seed=0, outlier_probability=0.1, **TRUTH), 2)
     config = _learning(scenarios[0])
     fleets = [FleetSlam(config, [s.initial_pose for s in scenarios], stamp=0.0) for _ in range(2)]
     fleets[1].replay_in_slices = True
     catching_up = []
-    for k in range(600):
+    for k in range(700):
         for fleet in fleets:
             for robot, scenario in enumerate(scenarios):
                 feed(_Robot(fleet, robot), scenario.steps[k])

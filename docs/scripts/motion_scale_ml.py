@@ -38,7 +38,7 @@ from test_noise_learning import TRUTH, run as run_learner, started_wrong, true_m
 from online_em_slam.baselines.ekf_slam import augment, joint_innovation, kalman_update, predict_joint  # noqa: E402
 from online_em_slam.core.config import SensorConfig  # noqa: E402
 from online_em_slam.core.em.noise.motion_noise import MotionSteps, prediction_statistic  # noqa: E402
-from online_em_slam.core.em.observed_information import motion_residual  # noqa: E402
+from online_em_slam.core.em.segment_factors import motion_residual  # noqa: E402
 from online_em_slam.core.models.motion import bicycle  # noqa: E402
 from online_em_slam.core.models.observation import innovation, pose_jacobian, predict_observation  # noqa: E402
 from online_em_slam.experiments.simulation import ScenarioConfig, simulate, slam_config_for  # noqa: E402

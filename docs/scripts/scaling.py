@@ -143,7 +143,7 @@ def main() -> None:
 
     print("\n## map size (corridor, ~6 landmarks per scan, N = 100)")
     target = max(args.landmarks)
-    cfg, steps = corridor_steps(target // 2 + 20, 2.0, 6.5)
+    cfg, steps = corridor_steps(int(0.55 * target) + 50, 2.0, 6.5)     # 2 landmarks a step, some pruned
     times, sizes, seen, spent = run_corridor(steps, cfg, 100, cap_s=args.corridor_cap, stop_at=target)
     print(f"{len(times)} steps in {spent:.0f} s, map of {sizes[-1]} landmarks, "
           f"{seen.mean():.1f} observations per scan")

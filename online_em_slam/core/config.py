@@ -29,6 +29,7 @@ NOISE_MODELS = ("gaussian", "mixture", "student_t")
 SMOOTHERS = ("forward", "paris", "ancestry")
 EM_ALGORITHMS = ("online", "block", "block_averaged")
 M_STEPS = ("complete", "observed")
+MAP_FORMS = ("information", "covariance")
 
 
 MIN_JITTER = 1e-9            # smallest motion jitter std (m, rad); see MotionConfig.position_jitter
@@ -234,6 +235,8 @@ class EMConfig:
     relinearize_threshold: a landmark farther than this (m) from the point its
                     Jacobians were taken at gets Jacobians at its current
                     estimate for its next factors.
+    map_form:       how the observed M-step holds the map's Gaussian: ``information``
+                    (observed_information.py) or ``covariance`` (observed_covariance.py).
     """
 
     algorithm: str = param("online", choices=EM_ALGORITHMS, doc="online (stochastic approximation), block or "
@@ -254,6 +257,9 @@ class EMConfig:
                                          "next factors.")
     first_estimate_jacobians: bool = param(True, doc="Observed M-step: Jacobians at each variable's first "
                                            "estimate, so the map's orientation gains no false information (FEJ).")
+    map_form: str = param("covariance", choices=MAP_FORMS, doc="Observed M-step: the map's Gaussian held as "
+                          "information (a Cholesky solve per segment, O(M^3)) or covariance (mean and covariance "
+                          "updated per segment, O(M^2)); the same estimate.")
 
     def validate(self, prefix: str = "em") -> None:
         check_fields(self, prefix)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.em.observed_information import POSE_DIM, SegmentSystem
+from ..core.em.segment_factors import POSE_DIM, SegmentSystem
 from ..core.em.segment_message import SegmentMessage
 
 FORMAT = "online_em_slam.segment.v1"

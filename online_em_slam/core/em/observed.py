@@ -3,7 +3,8 @@
 docs/METHOD.md, "Observed-information M-step".  The particle filter stays the E-step:
 it supplies the weighted mean pose xbar_t (the linearisation point), the
 association and the mixture responsibilities.  Each filter step adds its
-motion and observation factors to observed_information.ObservedInformation;
+motion and observation factors to the map's Gaussian (``em.map_form``: covariance,
+observed_covariance.ObservedCovariance, or information, observed_information.ObservedInformation);
 every ``em.segment_length`` steps the segment's poses are integrated out and
 the map is solved (online EM) or, with Block Online EM, solved at block ends
 only, theta staying fixed inside a block.  The solve also gives the correction
@@ -20,7 +21,9 @@ from ..config import SlamConfig
 from .step import FilterStepData
 from ..mapping.landmarks import LandmarkTable
 from ..models.observation import inv_det_2x2, landmark_jacobian, sensor_poses
-from .observed_information import POSE_DIM, ObservedInformation, StepFactors, motion_residual
+from .observed_covariance import ObservedCovariance
+from .observed_information import ObservedInformation
+from .segment_factors import POSE_DIM, StepFactors, motion_residual
 from .segment_message import SegmentMessage
 from .statistics import STAT_DIM, unpack
 
@@ -40,9 +43,10 @@ class ObservedInformationEM:
 
     def __init__(self, config: SlamConfig, initial_pose: np.ndarray) -> None:
         self.config = config
-        self.system = ObservedInformation(config.sensor, initial_pose, config.filter.initial_pose_std,
-                                          first_estimates=config.em.first_estimate_jacobians,
-                                          relinearize_threshold=config.em.relinearize_threshold)
+        store = ObservedCovariance if config.em.map_form == "covariance" else ObservedInformation
+        self.system = store(config.sensor, initial_pose, config.filter.initial_pose_std,
+                            first_estimates=config.em.first_estimate_jacobians,
+                            relinearize_threshold=config.em.relinearize_threshold)
         # Complete-data information per landmark, sum of H^T Pbar H: its inverse is the
         # landmark's uncertainty relative to the poses it was seen from (the gate's term).
         self.information = np.zeros((0, 2, 2))
@@ -80,7 +84,7 @@ class ObservedInformationEM:
             return None
         theta, key_corrections = solution
         pose_correction = key_corrections[POSE_DIM * robot:POSE_DIM * (robot + 1)]
-        table.theta[:] = theta
+        _take_solution(table, theta)
         self.system.move_key(pose_correction, robot)
         return pose_correction
 
@@ -122,7 +126,7 @@ class ObservedInformationEM:
     def restart_pose(self, pose: np.ndarray, pose_std, table: LandmarkTable, weights: np.ndarray | None = None,
                      robot: int = 0) -> None:
         """The filter (of ``robot``) was re-initialised at ``pose``: fold its open segment in,
-        then restart its key pose without a motion link (ObservedInformation.restart_key).
+        then restart its key pose without a motion link (the store's ``restart_key``).
         The replaced particles' ``weights`` do not matter: the segment holds the mean pose."""
         self._send(self.system.close_segment(table.theta, robot), table, robot)
         self.system.restart_key(pose, pose_std, robot)
@@ -161,7 +165,7 @@ class ObservedInformationEM:
         if solution is None:
             self.failed_solves += 1
             return
-        table.theta[:] = solution[0]
+        _take_solution(table, solution[0])
 
     # ------------------------------------------------------------ uncertainty
     def covariances(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
@@ -172,7 +176,11 @@ class ObservedInformationEM:
         """Marginals of the joint system (they include the frame's uncertainty); the
         per-landmark term for landmarks that have not reached it yet."""
         joint = self.system.landmark_covariances()
-        return joint if joint is not None else self.covariances()
+        if joint is None:
+            return self.covariances()
+        pending = np.isnan(joint[:, 0, 0])
+        joint[pending] = self.covariances(pending)
+        return joint
 
     # ------------------------------------------------------------ persistence
     def saved_arrays(self, theta: np.ndarray) -> dict[str, np.ndarray]:
@@ -194,6 +202,10 @@ class ObservedInformationEM:
         m = theta.shape[0]
         self.add_landmarks(m)
         self.information[:] = A
-        lm = self.system.key_dim + np.arange(2 * m).reshape(m, 2)
-        self.system.info[lm[:, :, None], lm[:, None, :]] += A
-        self.system.vector[self.system.key_dim:] += np.einsum("mij,mj->mi", A, theta).ravel()
+        self.system.add_prior(np.arange(self.system.n_landmarks - m, self.system.n_landmarks), theta, A)
+
+
+def _take_solution(table: LandmarkTable, theta: np.ndarray) -> None:
+    """The solve's map into the table; a landmark the solve does not hold yet (NaN: its factors
+    are still in a segment, covariance form) keeps its estimate."""
+    table.theta[:] = np.where(np.isnan(theta), table.theta, theta)

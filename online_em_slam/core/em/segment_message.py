@@ -1,7 +1,7 @@
 """What a node sends the others so that they share its robot's map information (docs/METHOD.md,
 "Fleet mode", "Distributed").
 
-A closed segment's factor (observed_information.SegmentSystem) is the robot's whole
+A closed segment's factor (segment_factors.SegmentSystem) is the robot's whole
 contribution to the map's system: its landmarks are in absolute coordinates and its
 poses are integrated out when it is folded in, so any node holding the same key block
 adds it exactly.  Sent with the landmarks' ids (rows differ from node to node), the
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .observed_information import SegmentSystem
+from .segment_factors import SegmentSystem
 
 
 @dataclass

@@ -3,7 +3,7 @@
 Each robot has its own particle filter (its pose), motion input, noise learner
 and initial pose (robot.py: the single-robot filter); the map is one parameter of
 every robot's hidden Markov model, so one observed-information system over
-[dx_key_1 .. dx_key_R; theta] (em/observed_information.py) takes every robot's
+[dx_key_1 .. dx_key_R; theta] (em/segment_factors.py) takes every robot's
 segments, and one landmark table serves every robot's association: a landmark
 created by one robot is associated by all (known ids: the same id is the same
 landmark; unknown ids: the gates see the shared map).

@@ -41,7 +41,7 @@ from ...models.angles import wrap_angle
 from ...models.motion import (GAIN_NAMES, ROTATION_STDS, TRANSLATION_STDS, gain, scaled_groups, scaled_noise,
                               shape_basis, shape_groups, step_jitter)
 from ...models.observation import information_noise, noise_covariance
-from ..observed_information import motion_residual
+from ..segment_factors import motion_residual
 from ..step import FilterStepData
 from .averages import StochasticAverage
 from .motion_gains import MotionGains, gain_statistic, known, move_towards
