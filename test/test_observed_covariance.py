@@ -83,6 +83,15 @@ def test_a_second_robots_key_block_matches_the_information_form(problem):
     assert _close(dx_c[:3], 0.0, 1e-12)
 
 
+def test_a_map_larger_than_the_first_buffer_grows_it_and_keeps_the_solution():
+    """40 landmarks (80 map slots) in a buffer made for 32: grown mid-run, every slot carried over."""
+    big = _problem(seed=5, steps=30, n_landmarks=40)
+    info, cov = _both(big, 7)
+    assert cov.mean.size > 3 + 64
+    (theta_i, dx_i), (theta_c, dx_c) = info.solve(), cov.solve()
+    assert theta_c.shape == (40, 2) and _close(theta_c, theta_i) and _close(dx_c, dx_i)
+
+
 def test_a_landmark_not_yet_folded_in_is_left_out_of_the_solve(problem):
     """Added (its factors still in the open segment): NaN in the solve, no covariance yet."""
     _, cov = _both(problem, 10)
