@@ -142,7 +142,7 @@ class ObservedCovariance(SegmentFactors):
         slots, whose old key is thereby marginalised, and the new landmarks' slots)."""
         top = self._top
         cross = -C @ self.cov[T, :top]                                 # Sigma_N: (n_N, top)
-        block = P_NN - cross[:, T] @ C.T                           # P_NN + C Sigma_TT C'
+        block = P_NN - cross[:, T] @ C.T                               # P_NN + C Sigma_TT C'
         mean_N = c - C @ self.mean[T]
         self.cov[N, :top] = cross
         self.cov[:top, N] = cross.T
