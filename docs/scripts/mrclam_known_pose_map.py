@@ -9,7 +9,9 @@ at their times (Gauss-Newton, Huber weights at 2 sigma, sigma_range 0.12 m, sigm
 1 deg), and scored against the survey in the ground-truth frame and after the best rigid fit
 (shape).  Then again with a per-landmark range bias b_k (range = |theta_k - p| + b_k, the
 issue's "systematic per-landmark observation error") under a prior N(0, bias_prior^2):
-does modelling the bias bring the map closer to the survey?
+does modelling the bias bring the map closer to the survey?  Last, whether the biases are the
+landmark's (the same for every robot): each robot's per-landmark median range errors, its own
+mean removed, correlated between the robots of a dataset.
 """
 import argparse
 
@@ -68,6 +70,27 @@ def run_maps(run, bias_prior):
     return map_error(np.array(plain), np.array(truth)), map_error(np.array(biased), np.array(truth))
 
 
+def median_range_errors(run) -> dict[int, float]:
+    """Each landmark's (seen at least MIN_MEASUREMENTS times) median range error against Vicon."""
+    x, y, _ = ground_truth_at(run, run.measurement_times)
+    survey = dict(zip(run.landmark_subjects.tolist(), run.landmark_xy))
+    out = {}
+    for subject in np.unique(run.measurement_subjects):
+        m = run.measurement_subjects == subject
+        if m.sum() >= MIN_MEASUREMENTS:
+            lx, ly = survey[int(subject)]
+            out[int(subject)] = float(np.median(run.measurement_range[m] - np.hypot(lx - x[m], ly - y[m])))
+    return out
+
+
+def between_robot_correlation(medians: list[dict[int, float]]) -> float:
+    """Mean pairwise correlation of the robots' landmark biases over the landmarks all saw."""
+    common = sorted(set.intersection(*(set(m) for m in medians)))
+    B = np.array([[m[s] for s in common] for m in medians])
+    C = np.corrcoef(B - B.mean(axis=1, keepdims=True))
+    return float(C[np.triu_indices(len(medians), 1)].mean())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data-dir", default="../shared/datasets/mrclam")
@@ -76,17 +99,24 @@ def main() -> None:
     args = parser.parse_args()
     print("| run | landmarks | shape (m) | ground-truth frame (m) | with range bias: shape | frame |")
     print("|---|---|---|---|---|---|")
-    shapes = []
+    shapes, correlation = [], {}
     for dataset in (1, 9):
+        medians = []
         for robot in range(1, 6):
             run = load_mrclam(f"{args.data_dir}/MRCLAM_Dataset{dataset}.tar.xz", robot, seconds=args.seconds)
+            medians.append(median_range_errors(run))
             plain, biased = run_maps(run, args.bias_prior)
             shapes.append((plain.shape_error, biased.shape_error))
             print(f"| D{dataset} R{robot} | {plain.n} | {plain.shape_error:.3f} | {plain.rmse:.3f} | "
                   f"{biased.shape_error:.3f} | {biased.rmse:.3f} |")
+        spread = np.mean([np.std(list(m.values())) for m in medians])
+        correlation[dataset] = (between_robot_correlation(medians), spread)
     shapes = np.array(shapes)
     print(f"mean shape {shapes[:, 0].mean():.3f}; with the range bias {shapes[:, 1].mean():.3f} "
           f"(better on {(shapes[:, 1] < shapes[:, 0]).sum()} of {len(shapes)} runs)")
+    for dataset, (corr, spread) in correlation.items():
+        print(f"Dataset {dataset}: landmark median range errors spread {spread:.3f} m (std over landmarks, "
+              f"mean over robots); between robots, own offsets removed, they correlate by {corr:+.2f}")
 
 
 if __name__ == "__main__":
