@@ -179,7 +179,9 @@ class ObservedInformationEM:
         if joint is None:
             return self.covariances()
         pending = np.isnan(joint[:, 0, 0])
-        joint[pending] = self.covariances(pending)
+        if pending.any():                         # the information form's array is its cache
+            joint = joint.copy()
+            joint[pending] = self.covariances(pending)
         return joint
 
     # ------------------------------------------------------------ persistence
