@@ -179,7 +179,7 @@ class ObservedInformationEM:
         if joint is None:
             return self.covariances()
         pending = np.isnan(joint[:, 0, 0])
-        if pending.any():                         # the information form's array is its cache
+        if pending.any():                         # a store may hand out its cached array
             joint = joint.copy()
             joint[pending] = self.covariances(pending)
         return joint
