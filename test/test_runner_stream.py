@@ -140,3 +140,62 @@ def test_reading_a_bag_keeps_no_per_message_inputs(bag):
     assert inputs.start == pytest.approx(T0)
     # Before, every input was kept (about 0.3-0.44 KB a message).
     assert held < 60 * n_messages, held / n_messages
+
+
+def _write_odometry_bag(path) -> None:
+    """/control and /odom at 10 Hz for 3 s (two odometry messages with a zero quaternion), a cloud
+    every 0.5 s."""
+    from online_em_slam.bag.bagio import jazzy_typestore, write_bag
+    from online_em_slam.datasets.kth.beacons import observation_columns
+    from online_em_slam.messages.cloud import OBSERVATION_FIELDS, encode
+
+    ts = jazzy_typestore()
+    T = ts.types
+    V3 = T["geometry_msgs/msg/Vector3"]
+
+    def header(seconds, frame):
+        sec, nsec = divmod(int(round(seconds * 1e9)), 1_000_000_000)
+        return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
+                                        frame_id=frame)
+
+    def odometry(t, w):
+        pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=t - T0, y=0.0, z=0.0),
+                                           orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=w))
+        return T["nav_msgs/msg/Odometry"](header=header(t, "odom"), child_frame_id="base_link",
+                                          pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+                                          twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                                              twist=T["geometry_msgs/msg/Twist"](linear=V3(x=1.0, y=0.0, z=0.0),
+                                                                                 angular=V3(x=0.0, y=0.0, z=0.0)),
+                                              covariance=np.zeros(36)))
+
+    def cloud(t):
+        specs, step, data = encode(observation_columns(np.array([5.0]), np.array([0.1])), layout=OBSERVATION_FIELDS)
+        fields = [T["sensor_msgs/msg/PointField"](name=f.name, offset=f.offset, datatype=f.datatype, count=f.count)
+                  for f in specs]
+        return T["sensor_msgs/msg/PointCloud2"](header=header(t, "laser"), height=1, width=1, fields=fields,
+                                                is_bigendian=False, point_step=step, row_step=step,
+                                                data=np.frombuffer(data, dtype=np.uint8).copy(), is_dense=True)
+
+    messages = []
+    for k in range(30):
+        t = T0 + 0.1 * k
+        messages.append((t, "/control", "geometry_msgs/msg/TwistStamped", T["geometry_msgs/msg/TwistStamped"](
+            header=header(t, "base_link"), twist=T["geometry_msgs/msg/Twist"](
+                linear=V3(x=1.0, y=0.0, z=0.0), angular=V3(x=0.0, y=0.0, z=0.0)))))
+        messages.append((t, "/odom", "nav_msgs/msg/Odometry", odometry(t, 0.0 if k in (7, 19) else 1.0)))
+        if k % 5 == 4:
+            messages.append((t + 0.01, "/landmark_observations", "sensor_msgs/msg/PointCloud2", cloud(t + 0.01)))
+    messages.sort(key=lambda m: m[0])
+    write_bag(path, ((int(round(t * 1e9)), topic, msgtype, msg) for t, topic, msgtype, msg in messages), ts)
+
+
+@pytest.mark.parametrize("motion_source", ["control", "odom"])
+def test_refused_odometry_is_counted_whether_it_drives_the_estimator_or_not(tmp_path, motion_source):
+    """Control mode does not read the odometry again in the stream; the first pass counted it."""
+    _write_odometry_bag(tmp_path / "bag")
+    model = {"motion.model": "unicycle", "control_angular": "yaw_rate"} if motion_source == "control" else {}
+    config, settings = config_from_params({"motion_source": motion_source, "filter.num_particles": 10, **model})
+    inputs = runner.read_inputs(tmp_path / "bag", settings)
+    result = runner.feed(runner.make_estimator("online_em", config, (0.0, 0.0, 0.0)), inputs)
+    assert result.skipped.get("degenerate_quaternion") == 2, result.skipped
+    assert len(result.trajectory) == 6
