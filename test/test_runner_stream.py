@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import gc
 import tracemalloc
+from functools import partial
 
 import numpy as np
 import pytest
@@ -25,29 +26,33 @@ CLOUD_LATENCY = 0.5          # s between a cloud's stamp and its log time (a liv
 LATE = (T0 + 10.0, 3.0)      # one more cloud, stamped T0 + 10 s, logged 3 s later: beyond the window
 
 
+def _header(T, seconds, frame):
+    sec, nsec = divmod(int(round(seconds * 1e9)), 1_000_000_000)
+    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame)
+
+
+def _cloud(T, stamp):
+    """One observation (5 m, 0.1 rad, unknown id) stamped ``stamp``."""
+    from online_em_slam.datasets.kth.beacons import observation_columns
+    from online_em_slam.messages.cloud import OBSERVATION_FIELDS, encode
+
+    specs, step, data = encode(observation_columns(np.array([5.0]), np.array([0.1])), layout=OBSERVATION_FIELDS)
+    fields = [T["sensor_msgs/msg/PointField"](name=f.name, offset=f.offset, datatype=f.datatype, count=f.count)
+              for f in specs]
+    return T["sensor_msgs/msg/PointCloud2"](header=_header(T, stamp, "laser"), height=1, width=1, fields=fields,
+                                            is_bigendian=False, point_step=step, row_step=step,
+                                            data=np.frombuffer(data, dtype=np.uint8).copy(), is_dense=True)
+
+
 def _write_bag(path) -> int:
     """/control at 40 Hz for 60 s, /landmark_observations at 5 Hz for 5 s (logged 0.5 s after their
     stamps), one cloud logged 3 s after its stamp; returns the number of input messages."""
-    from online_em_slam.bag.bagio import write_bag
-    from online_em_slam.messages.cloud import OBSERVATION_FIELDS, encode
-    from online_em_slam.datasets.kth.beacons import observation_columns
-    from online_em_slam.bag.bagio import jazzy_typestore
+    from online_em_slam.bag.bagio import jazzy_typestore, write_bag
 
     ts = jazzy_typestore()
     T = ts.types
-
-    def header(seconds, frame):
-        sec, nsec = divmod(int(round(seconds * 1e9)), 1_000_000_000)
-        return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
-                                        frame_id=frame)
-
-    def cloud(stamp):
-        specs, step, data = encode(observation_columns(np.array([5.0]), np.array([0.1])), layout=OBSERVATION_FIELDS)
-        fields = [T["sensor_msgs/msg/PointField"](name=f.name, offset=f.offset, datatype=f.datatype, count=f.count)
-                  for f in specs]
-        return T["sensor_msgs/msg/PointCloud2"](header=header(stamp, "laser"), height=1, width=1, fields=fields,
-                                                is_bigendian=False, point_step=step, row_step=step,
-                                                data=np.frombuffer(data, dtype=np.uint8).copy(), is_dense=True)
+    header = partial(_header, T)
+    cloud = partial(_cloud, T)
 
     V3 = T["geometry_msgs/msg/Vector3"]
     messages = []            # (log time, topic, msgtype, message)
@@ -146,17 +151,12 @@ def _write_odometry_bag(path) -> None:
     """/control and /odom at 10 Hz for 3 s (two odometry messages with a zero quaternion), a cloud
     every 0.5 s."""
     from online_em_slam.bag.bagio import jazzy_typestore, write_bag
-    from online_em_slam.datasets.kth.beacons import observation_columns
-    from online_em_slam.messages.cloud import OBSERVATION_FIELDS, encode
 
     ts = jazzy_typestore()
     T = ts.types
     V3 = T["geometry_msgs/msg/Vector3"]
-
-    def header(seconds, frame):
-        sec, nsec = divmod(int(round(seconds * 1e9)), 1_000_000_000)
-        return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
-                                        frame_id=frame)
+    header = partial(_header, T)
+    cloud = partial(_cloud, T)
 
     def odometry(t, w):
         pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=t - T0, y=0.0, z=0.0),
@@ -167,14 +167,6 @@ def _write_odometry_bag(path) -> None:
                                               twist=T["geometry_msgs/msg/Twist"](linear=V3(x=1.0, y=0.0, z=0.0),
                                                                                  angular=V3(x=0.0, y=0.0, z=0.0)),
                                               covariance=np.zeros(36)))
-
-    def cloud(t):
-        specs, step, data = encode(observation_columns(np.array([5.0]), np.array([0.1])), layout=OBSERVATION_FIELDS)
-        fields = [T["sensor_msgs/msg/PointField"](name=f.name, offset=f.offset, datatype=f.datatype, count=f.count)
-                  for f in specs]
-        return T["sensor_msgs/msg/PointCloud2"](header=header(t, "laser"), height=1, width=1, fields=fields,
-                                                is_bigendian=False, point_step=step, row_step=step,
-                                                data=np.frombuffer(data, dtype=np.uint8).copy(), is_dense=True)
 
     messages = []
     for k in range(30):
