@@ -13,9 +13,10 @@ The period counts filter steps, not inputs: a copy costs 0.5 ms (Car Park) to a 
 ms (Victoria Park's 237 landmarks), a control input a few hundredths of a ms, and the
 bound that matters on a failure is the filter steps to apply again.  Counted by
 inputs, Victoria Park's nine controls per scan made a copy every few scans: about 1 s
-of the 4.5 s its feed loop spends outside the filter steps.  Lists that only ever grow (the warm-up log of
-``OnlineEMSlam``, named by the estimator's ``append_only_lists``) are shared,
-not copied, and cut back to their length at the copy when it is put back.
+of the 4.5 s its feed loop spends outside the filter steps.  Lists that only ever
+grow (the warm-up log of ``OnlineEMSlam``, named by the estimator's
+``append_only_lists``) are shared, not copied, and cut back to their length at the
+copy when it is put back.
 """
 from __future__ import annotations
 
