@@ -14,8 +14,8 @@ from online_em_slam.core.models import motion
 from online_em_slam.core.models.angles import wrap_angle
 from online_em_slam.core.config import MotionConfig, SensorConfig
 from online_em_slam.core.models.observation import predict_observation, sensor_poses
-from online_em_slam.core.em.observed_information import (ObservedInformation, StepFactors,
-                                                       motion_residual)
+from online_em_slam.core.em.observed_information import ObservedInformation
+from online_em_slam.core.em.segment_factors import StepFactors, motion_residual
 
 SENSOR = SensorConfig(offset_x=0.6, offset_y=-0.2, offset_yaw=0.05, max_range=40.0)
 MOTION = MotionConfig(model="bicycle", wheelbase=2.5, sigma_speed=0.3, sigma_steering=0.03)

@@ -15,8 +15,7 @@ import numpy as np
 from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 from ..config import SensorConfig
-from .segment_factors import (MIN_PRIOR_STD, POSE_DIM, SegmentFactors, SegmentSystem, StepFactors,  # noqa: F401
-                              marginalize, motion_residual, observation_factor)
+from .segment_factors import MIN_PRIOR_STD, POSE_DIM, SegmentFactors, SegmentSystem, marginalize
 
 
 class ObservedInformation(SegmentFactors):
