@@ -264,12 +264,17 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
 
     Equivalent to K calls of :func:`propagate` (the calibrated inputs) with mean <- f(mean, u_k) and
     P <- F_k P F_k^T + Q_k.  It relies on two properties shared by all models:
-    the yaw increment does not depend on the pose, so every heading along the
-    way is known up front, and the Jacobians are I + s_k e_yaw^T, so
-    P_K = A_0 P_0 A_0^T + sum_k A_k Q_k A_k^T with A_k = I + (sum_{j>k} s_j) e_yaw^T.
-    The model's control factors are computed once per segment (K, 1) and its moves once,
-    on the (K, N) headings.  With ``with_jacobian`` the compounded Jacobian A_0 (N, 3, 3)
-    is returned too.
+    the yaw increment does not depend on the pose, and the move, the lever and the noise
+    depend on the pose only through its heading, as a rotation of the position
+    components.  So, in the frame of a pose's starting heading, the K segments' moves,
+    levers s_k and noise Q_k are the same for every pose: they are evaluated once (K, 1)
+    and compounded there, the Jacobians being I + s_k e_yaw^T,
+
+        P_K = A_0 P_0 A_0^T + sum_k A_k Q_k A_k^T,   A_k = I + (sum_{j>k} s_j) e_yaw^T,
+
+    then turned into each pose's heading: O(K + N) work instead of O(K N) (the KTH ute's
+    control messages outnumber its scans eightfold).  With ``with_jacobian`` the
+    compounded Jacobian A_0 (N, 3, 3) is returned too.
     """
     controls = calibrated(config, controls)
     dts = np.asarray(dts, dtype=float)
@@ -280,38 +285,44 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
     segment, moves = SEGMENT_PARTS[config.model]
     factors = segment(config, controls[:, None, :], dts[:, None])             # (K, 1) each
     yaw_steps = np.zeros(k) + factors[0][:, 0]
-    yaw_before = np.concatenate([[0.0], np.cumsum(yaw_steps)[:-1]]) if k > 1 else np.zeros(1)
-    (dx, dy, _), lever, Q = moves(config, factors, poses[None, :, 2] + yaw_before[:, None])   # (K, N)
+    yaw_before = np.concatenate([[0.0], np.cumsum(yaw_steps)[:-1]])
+    (dx, dy, _), lever, Q = moves(config, factors, yaw_before[:, None])       # (K, 1): start's heading frame
+    s = np.stack([lever[0][:, 0], lever[1][:, 0]], axis=-1)                   # (K, 2)
+    from_k = np.cumsum(s[::-1], axis=0)[::-1]                                 # sum_{j >= k} s_j
+    noise = _through_lever(Q[:, 0], from_k - s).sum(axis=0)                   # (3, 3)
+    c, sin = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    move, total = (float(dx.sum()), float(dy.sum())), from_k[0]
     new = poses.copy()
-    if k > 1:      # summed as a (K, N, 2) slice of (K, N, 3): numpy's order of summation, so its rounding
-        moves = np.empty((k, n, 3))
-        moves[..., 0], moves[..., 1] = dx, dy
-        new[:, :2] += moves[..., :2].sum(axis=0)
-    else:
-        new[:, 0] += dx[0]
-        new[:, 1] += dy[0]
+    new[:, 0] += c * move[0] - sin * move[1]
+    new[:, 1] += sin * move[0] + c * move[1]
     new[:, 2] += yaw_steps.sum()
-    if k > 1:
-        s = np.stack(lever, axis=-1)                                          # (K, N, 2)
-        from_k = np.cumsum(s[::-1], axis=0)[::-1]                             # sum_{j >= k} s_j
-        noise, total = _through_lever(Q, from_k - s).sum(axis=0), from_k[0]
-    else:      # nothing after the one segment: its noise as it is (+ 0.0: the zero lever's signed zeros)
-        noise, total = Q[0] + 0.0, None
+    total = np.stack([c * total[0] - sin * total[1], sin * total[0] + c * total[1]], axis=-1)   # (N, 2)
+    cov = _turned(noise, c, sin)
     # A zero P_0 (every flush right after a filter step) gives zero through the lever.
     if covariances.any():
-        total = np.stack([lever[0][0], lever[1][0]], axis=-1) if total is None else total
-        cov = _through_lever(covariances, total) + noise
-    else:      # + 0.0: the zero lever's signed zeros (the one segment's noise has them already)
-        cov = noise + 0.0 if k > 1 else noise
+        cov += _through_lever(covariances, total)
     if not with_jacobian:
         return new, cov
     jacobian = np.zeros((n, 3, 3))
     jacobian[:, 0, 0] = jacobian[:, 1, 1] = jacobian[:, 2, 2] = 1.0
-    if total is None:
-        jacobian[:, 0, 2], jacobian[:, 1, 2] = lever[0][0], lever[1][0]
-    else:
-        jacobian[:, :2, 2] = total
+    jacobian[:, :2, 2] = total
     return new, cov, jacobian
+
+
+def _turned(M: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """T M T^T (N, 3, 3) of a symmetric M (3, 3), T the rotation by each heading (cos ``c``,
+    sin ``s``, (N,)) of the position components; the result exactly symmetric."""
+    a, b, e = M[0, 0], 0.5 * (M[0, 1] + M[1, 0]), M[1, 1]
+    d, f, g = 0.5 * (M[0, 2] + M[2, 0]), 0.5 * (M[1, 2] + M[2, 1]), M[2, 2]
+    cc, ss, cs = c * c, s * s, c * s
+    out = np.empty(c.shape + (3, 3))
+    out[:, 0, 0] = cc * a - 2.0 * cs * b + ss * e
+    out[:, 1, 1] = ss * a + 2.0 * cs * b + cc * e
+    out[:, 0, 1] = out[:, 1, 0] = cs * (a - e) + (cc - ss) * b
+    out[:, 0, 2] = out[:, 2, 0] = c * d - s * f
+    out[:, 1, 2] = out[:, 2, 1] = s * d + c * f
+    out[:, 2, 2] = g
+    return out
 
 
 # The two groups of motion noise: what drives the distance travelled (speed, translation)
