@@ -199,44 +199,84 @@ def group_scales(A: np.ndarray, b: np.ndarray, low: float, high: float, current:
     """The scales s of the averaged system A s = b, each within [low, high].
 
     A s = b is the gradient of q(s) = s^T A s / 2 - b^T s (A symmetric positive semi-definite),
-    so the bounded estimate minimises q over the box.  With a few groups every
-    split into groups at the floor, at the ceiling and free is tried (3^m small solves);
-    the feasible one with the least q wins.  Groups the data have not excited (zero
-    diagonal) keep ``current``; nearly collinear groups (a constant speed makes the
-    constant and the relative speed noise alike) then share what the data give them
-    without running off to opposite limits.
+    so the bounded estimate minimises q over the box.  Each group is at the floor, at the
+    ceiling or free (its scale from the free groups' sub-system, :func:`_split_solution`);
+    the split is found by an active-set search (:func:`_active_set`), whose answer meets the
+    box's optimality conditions, which for a convex q make it the minimum.  Groups the data
+    have not excited (zero diagonal) keep ``current``; nearly collinear groups (a constant
+    speed makes the constant and the relative speed noise alike) then share what the data
+    give them without running off to opposite limits.  Should the search not settle, every
+    split is tried (:func:`_enumerated_split`, 3^m small solves) and the feasible one with the
+    least q wins.
     """
     scales = np.array(current, dtype=float)
     informed = np.flatnonzero(np.diag(A) > 0)
     if informed.size == 0:
         return scales
     A_i, b_i = A[np.ix_(informed, informed)], b[informed]
-    try:
-        inside = np.linalg.solve(A_i, b_i)
-        if np.all(inside >= low) and np.all(inside <= high):        # the stationary point: the minimum
-            scales[informed] = inside
-            return scales
-    except np.linalg.LinAlgError:
-        pass
-    best, best_q = None, np.inf
-    for status in itertools.product((0, 1, 2), repeat=informed.size):       # 0 floor, 1 free, 2 ceiling
-        status = np.array(status)
-        s = np.where(status == 2, high, low).astype(float)
-        free = status == 1
-        if free.any():
-            fixed = ~free
-            try:
-                s[free] = np.linalg.solve(A_i[np.ix_(free, free)], b_i[free] - A_i[np.ix_(free, fixed)] @ s[fixed])
-            except np.linalg.LinAlgError:
-                continue
-            if np.any(s[free] < low) or np.any(s[free] > high):
-                continue
-        q = 0.5 * s @ A_i @ s - b_i @ s
-        if q < best_q:
-            best, best_q = s, q
+    status = _active_set(A_i, b_i, low, high)
+    best = _split_solution(A_i, b_i, status, low, high) if status is not None else _enumerated_split(A_i, b_i, low,
+                                                                                                     high)
     if best is not None:
         scales[informed] = best
     return scales
+
+
+def _split_solution(A: np.ndarray, b: np.ndarray, status: np.ndarray, low: float, high: float) -> np.ndarray:
+    """s of one split (``status`` per group: 0 at the floor, 1 free, 2 at the ceiling): the free
+    groups solve their rows of A s = b with the others at their limits.  Raises LinAlgError
+    on a singular sub-system."""
+    s = np.where(status == 2, high, low).astype(float)
+    free = status == 1
+    if free.any():
+        fixed = ~free
+        s[free] = np.linalg.solve(A[np.ix_(free, free)], b[free] - A[np.ix_(free, fixed)] @ s[fixed])
+    return s
+
+
+def _active_set(A: np.ndarray, b: np.ndarray, low: float, high: float) -> np.ndarray | None:
+    """The split at q's minimum over the box, by a primal active-set search from all free: a
+    free group's scale beyond a limit (the farthest first) is held there; a held group whose
+    gradient g = A s - b pulls it inside (a multiplier of the wrong sign, the largest first) is
+    freed again.  It stops where neither happens, the box's optimality conditions; None when
+    a sub-system is singular or it has not stopped after 3^m changes."""
+    m = b.size
+    status = np.ones(m, dtype=int)
+    scale = max(float(np.abs(A).max()) * max(abs(low), abs(high)), float(np.abs(b).max()), 1e-300)
+    for _ in range(3 ** m):
+        try:
+            s = _split_solution(A, b, status, low, high)
+        except np.linalg.LinAlgError:
+            return None
+        outside = np.where(status == 1, np.maximum(low - s, s - high), 0.0)
+        if outside.max() > 0.0:
+            i = int(np.argmax(outside))
+            status[i] = 0 if s[i] < low else 2
+            continue
+        g = A @ s - b
+        wrong = np.where(status == 0, -g, np.where(status == 2, g, 0.0))
+        if wrong.max() <= 1e-12 * scale:
+            return status
+        status[int(np.argmax(wrong))] = 1
+    return None
+
+
+def _enumerated_split(A: np.ndarray, b: np.ndarray, low: float, high: float) -> np.ndarray | None:
+    """The feasible split with the least q of all 3^m (each group at the floor, free or at the
+    ceiling); None if none is feasible."""
+    best, best_q = None, np.inf
+    for status in itertools.product((0, 1, 2), repeat=b.size):
+        try:
+            s = _split_solution(A, b, np.array(status), low, high)
+        except np.linalg.LinAlgError:
+            continue
+        free = np.array(status) == 1
+        if np.any(s[free] < low) or np.any(s[free] > high):
+            continue
+        q = 0.5 * s @ A @ s - b @ s
+        if q < best_q:
+            best, best_q = s, q
+    return best
 
 
 def block_diagonal(blocks: np.ndarray) -> np.ndarray:
