@@ -18,7 +18,7 @@ received between two scans in one vectorised pass.
 """
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -258,6 +258,40 @@ def _through_lever(P: np.ndarray, s: np.ndarray) -> np.ndarray:
             + P[..., 2, 2][..., None, None] * s3[..., :, None] * s3[..., None, :])
 
 
+@dataclass(frozen=True)
+class SegmentFrame:
+    """K control segments compounded in the frame of the starting heading (the same for
+    every pose, :func:`compound_segments`): the move ``dx``, ``dy``, the yaw turned, the
+    lever total sum_k s_k (2,) and the noise sum_k A_k Q_k A_k^T (3, 3)."""
+
+    dx: float
+    dy: float
+    yaw: float
+    lever: np.ndarray
+    noise: np.ndarray
+
+
+def compound_segments(config: MotionConfig, controls: np.ndarray, dts: np.ndarray) -> SegmentFrame | None:
+    """The K segments' :class:`SegmentFrame` (None for none): each model's control factors and
+    its moves, levers and G Q G^T evaluated once per segment at the headings turned so far,
+    the Jacobians I + s_k e_yaw^T compounded as P_K = A_0 P_0 A_0^T + sum_k A_k Q_k A_k^T,
+    A_k = I + (sum_{j>k} s_j) e_yaw^T."""
+    controls = calibrated(config, controls)
+    dts = np.asarray(dts, dtype=float)
+    k = dts.shape[0]
+    if k == 0:
+        return None
+    segment, moves = SEGMENT_PARTS[config.model]
+    factors = segment(config, controls[:, None, :], dts[:, None])             # (K, 1) each
+    yaw_steps = np.zeros(k) + factors[0][:, 0]
+    yaw_before = np.concatenate([[0.0], np.cumsum(yaw_steps)[:-1]])
+    (dx, dy, _), lever, Q = moves(config, factors, yaw_before[:, None])       # (K, 1): start's heading frame
+    s = np.stack([lever[0][:, 0], lever[1][:, 0]], axis=-1)                   # (K, 2)
+    from_k = np.cumsum(s[::-1], axis=0)[::-1]                                 # sum_{j >= k} s_j
+    return SegmentFrame(float(dx.sum()), float(dy.sum()), float(yaw_steps.sum()), from_k[0],
+                        _through_lever(Q[:, 0], from_k - s).sum(axis=0))
+
+
 def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.ndarray,
                        controls: np.ndarray, dts: np.ndarray, with_jacobian: bool = False):
     """Apply K consecutive control segments to every pose in one vectorised pass.
@@ -266,44 +300,36 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
     P <- F_k P F_k^T + Q_k.  It relies on two properties shared by all models:
     the yaw increment does not depend on the pose, and the move, the lever and the noise
     depend on the pose only through its heading, as a rotation of the position
-    components.  So, in the frame of a pose's starting heading, the K segments' moves,
-    levers s_k and noise Q_k are the same for every pose: they are evaluated once (K, 1)
-    and compounded there, the Jacobians being I + s_k e_yaw^T,
-
-        P_K = A_0 P_0 A_0^T + sum_k A_k Q_k A_k^T,   A_k = I + (sum_{j>k} s_j) e_yaw^T,
-
-    then turned into each pose's heading: O(K + N) work instead of O(K N) (the KTH ute's
+    components.  So the K segments are compounded once in the frame of a pose's starting
+    heading (:func:`compound_segments`, the same for every pose) and turned into each
+    pose's heading (:func:`apply_frame`): O(K + N) work instead of O(K N) (the KTH ute's
     control messages outnumber its scans eightfold).  With ``with_jacobian`` the
     compounded Jacobian A_0 (N, 3, 3) is returned too.
     """
-    controls = calibrated(config, controls)
-    dts = np.asarray(dts, dtype=float)
-    k, n = dts.shape[0], poses.shape[0]
-    if k == 0:
+    frame = compound_segments(config, controls, dts)
+    if frame is None:
         identity = np.broadcast_to(np.eye(3), covariances.shape).copy()
         return (poses, covariances, identity) if with_jacobian else (poses, covariances)
-    segment, moves = SEGMENT_PARTS[config.model]
-    factors = segment(config, controls[:, None, :], dts[:, None])             # (K, 1) each
-    yaw_steps = np.zeros(k) + factors[0][:, 0]
-    yaw_before = np.concatenate([[0.0], np.cumsum(yaw_steps)[:-1]])
-    (dx, dy, _), lever, Q = moves(config, factors, yaw_before[:, None])       # (K, 1): start's heading frame
-    s = np.stack([lever[0][:, 0], lever[1][:, 0]], axis=-1)                   # (K, 2)
-    from_k = np.cumsum(s[::-1], axis=0)[::-1]                                 # sum_{j >= k} s_j
-    noise = _through_lever(Q[:, 0], from_k - s).sum(axis=0)                   # (3, 3)
+    return apply_frame(frame, poses, covariances, with_jacobian)
+
+
+def apply_frame(frame: SegmentFrame, poses: np.ndarray, covariances: np.ndarray, with_jacobian: bool = False):
+    """(f(X), P_K[, A_0]) of poses (N, 3) with covariances P_0 (N, 3, 3) moved by ``frame``,
+    turned into each pose's heading."""
     c, sin = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    move, total = (float(dx.sum()), float(dy.sum())), from_k[0]
     new = poses.copy()
-    new[:, 0] += c * move[0] - sin * move[1]
-    new[:, 1] += sin * move[0] + c * move[1]
-    new[:, 2] += yaw_steps.sum()
-    total = np.stack([c * total[0] - sin * total[1], sin * total[0] + c * total[1]], axis=-1)   # (N, 2)
-    cov = _turned(noise, c, sin)
+    new[:, 0] += c * frame.dx - sin * frame.dy
+    new[:, 1] += sin * frame.dx + c * frame.dy
+    new[:, 2] += frame.yaw
+    lever = frame.lever
+    total = np.stack([c * lever[0] - sin * lever[1], sin * lever[0] + c * lever[1]], axis=-1)   # (N, 2)
+    cov = _turned(frame.noise, c, sin)
     # A zero P_0 (every flush right after a filter step) gives zero through the lever.
     if covariances.any():
         cov += _through_lever(covariances, total)
     if not with_jacobian:
         return new, cov
-    jacobian = np.zeros((n, 3, 3))
+    jacobian = np.zeros((poses.shape[0], 3, 3))
     jacobian[:, 0, 0] = jacobian[:, 1, 1] = jacobian[:, 2, 2] = 1.0
     jacobian[:, :2, 2] = total
     return new, cov, jacobian
