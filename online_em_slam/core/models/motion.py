@@ -306,11 +306,35 @@ def integrate_segments(config: MotionConfig, poses: np.ndarray, covariances: np.
     control messages outnumber its scans eightfold).  With ``with_jacobian`` the
     compounded Jacobian A_0 (N, 3, 3) is returned too.
     """
+    if np.shape(dts)[0] == 1:          # nothing to compound: the model on every heading costs less
+        return _one_segment(config, poses, covariances, controls, dts, with_jacobian)
     frame = compound_segments(config, controls, dts)
     if frame is None:
         identity = np.broadcast_to(np.eye(3), covariances.shape).copy()
         return (poses, covariances, identity) if with_jacobian else (poses, covariances)
     return apply_frame(frame, poses, covariances, with_jacobian)
+
+
+def _one_segment(config: MotionConfig, poses: np.ndarray, covariances: np.ndarray, controls: np.ndarray,
+                 dts: np.ndarray, with_jacobian: bool):
+    """:func:`integrate_segments` of one segment, the model evaluated on the N headings (the
+    seed scenario's every step: one control per scan)."""
+    segment, moves = SEGMENT_PARTS[config.model]
+    factors = segment(config, calibrated(config, controls)[:, None, :], np.asarray(dts, dtype=float)[:, None])
+    (dx, dy, dyaw), lever, Q = moves(config, factors, poses[None, :, 2] + 0.0)          # (1, N)
+    new = poses.copy()
+    new[:, 0] += dx[0]
+    new[:, 1] += dy[0]
+    new[:, 2] += np.zeros(1) + dyaw[:, 0]
+    cov = Q[0] + 0.0           # + 0.0: the zero lever's signed zeros
+    if covariances.any():
+        cov = _through_lever(covariances, np.stack([lever[0][0], lever[1][0]], axis=-1)) + cov
+    if not with_jacobian:
+        return new, cov
+    jacobian = np.zeros((poses.shape[0], 3, 3))
+    jacobian[:, 0, 0] = jacobian[:, 1, 1] = jacobian[:, 2, 2] = 1.0
+    jacobian[:, 0, 2], jacobian[:, 1, 2] = lever[0][0], lever[1][0]
+    return new, cov, jacobian
 
 
 def apply_frame(frame: SegmentFrame, poses: np.ndarray, covariances: np.ndarray, with_jacobian: bool = False):
