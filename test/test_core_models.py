@@ -123,17 +123,20 @@ def test_acfr_model_moves_laser_point_as_the_dataset_model():
     np.testing.assert_allclose(laser_rate, expected, rtol=1e-3)
 
 
+@pytest.mark.parametrize("segments", [1, 6])
 @pytest.mark.parametrize("model", ["bicycle", "acfr", "unicycle", "odometry"])
-def test_batched_segments_equal_step_by_step_propagation(model):
-    """integrate_segments (one vectorised pass) = K sequential propagate calls."""
+def test_batched_segments_equal_step_by_step_propagation(model, segments):
+    """integrate_segments (one vectorised pass: one segment on every heading, several
+    compounded in the start's heading frame and turned) = K sequential propagate calls."""
     rng = np.random.default_rng(11)
     config = MotionConfig(model=model, wheelbase=2.83, sigma_heading=0.01)
     poses = rng.normal(size=(7, 3)) * [3, 3, 2]
     a = rng.normal(size=(7, 3, 3)) * 0.1
     P = a @ a.transpose(0, 2, 1)
     width = 3 if model == "odometry" else 2
-    controls = rng.normal(size=(6, width)) * 0.3 + ([0.5, 0.0, 0.0][:width] if model == "odometry" else [3.0, 0.0])
-    dts = rng.uniform(0.01, 0.05, size=6)
+    controls = rng.normal(size=(segments, width)) * 0.3 + ([0.5, 0.0, 0.0][:width] if model == "odometry"
+                                                          else [3.0, 0.0])
+    dts = rng.uniform(0.01, 0.05, size=segments)
     mean, cov = poses.copy(), P.copy()
     for u, dt in zip(controls, dts):
         mean, F, Q = motion.propagate(config, mean, u, dt)
