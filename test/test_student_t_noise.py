@@ -18,7 +18,7 @@ from scipy.special import digamma
 from online_em_slam.core import OnlineEMSlam
 from online_em_slam.core.config import AssociationConfig, NoiseLearningConfig, ObservationNoiseConfig, replace_section
 from online_em_slam.core.em.noise.observation import student_t_dof
-from online_em_slam.core.filter.association import Gates
+from online_em_slam.core.filter.association import Gates, chi_square_2_quantile
 from online_em_slam.core.models.observation import (component_precision_weight, mahalanobis_2d, noise_loglik,
                                                     student_t_weight)
 from online_em_slam.experiments.simulation import ScenarioConfig, feed, simulate, slam_config_for
@@ -51,6 +51,11 @@ def test_gates_are_the_quantiles_of_the_t_distance(dof):
     assert np.mean(d2 < gates.create) == pytest.approx(0.99, abs=0.001)
     gaussian = Gates.from_config(AssociationConfig(gate_probability=0.95, new_landmark_probability=0.99))
     assert gaussian.associate == pytest.approx(stats.chi2.ppf(0.95, 2)) and gaussian.dof is None
+
+
+def test_chi_square_gates_in_closed_form_are_scipys_quantiles():
+    for p in (1e-9, 0.5, 0.9, 0.95, 0.99, 0.999, 0.9999, 0.999999999):
+        assert chi_square_2_quantile(p) == pytest.approx(stats.chi2.ppf(p, 2), rel=1e-15)
 
 
 def test_the_t_cost_is_twice_the_negative_log_density_up_to_a_constant():
