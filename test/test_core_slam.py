@@ -220,3 +220,20 @@ def test_a_map_reloaded_after_the_robot_moved_is_found_again(tmp_path, spread):
         assert off < 2.0 and extra <= 1 and not second.relocalising, (off, extra)
     else:
         assert off > 10.0, off
+
+
+@pytest.mark.parametrize("known", [True, False])
+def test_only_a_landmark_made_without_an_id_is_pruned_while_tentative(known):
+    """A landmark seen once and then out of view for longer than the timeout: with the id the
+    sensor read it waits to be seen again (as the baselines' LandmarkBook); without, it goes."""
+    config = SlamConfig()
+    config.association.tentative_timeout = 3
+    slam = OnlineEMSlam(config, stamp=0.0)
+    slam.add_observations(0.1, Observations([4.0], [0.3], [5] if known else None))
+    for k in range(8):
+        slam.add_observations(0.2 + 0.1 * k, Observations([], []))
+    assert len(slam.landmarks()) == (1 if known else 0)
+    if known:
+        for k in range(2):
+            slam.add_observations(1.1 + 0.1 * k, Observations([4.0], [0.3], [5]))
+        assert slam.landmarks(confirmed_only=True).ids.tolist() == [5]

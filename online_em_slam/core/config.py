@@ -274,8 +274,9 @@ class AssociationConfig:
                                landmark creates a landmark; between the two gates it
                                is ambiguous and dropped (counted).
     confirm_observations:      a tentative landmark becomes confirmed after this many
-                               observations; unconfirmed ones older than
-                               ``tentative_timeout`` observation steps are pruned.
+                               observations; unconfirmed ones made without an id older
+                               than ``tentative_timeout`` observation steps are pruned
+                               (a landmark whose id the sensor read is kept).
     min_observations_for_weighting: landmarks seen fewer times do not weight particles.
     gate_position_std / gate_heading_std: extra pose uncertainty (m, rad) added to
                                the innovation covariance of the association gate only.
@@ -300,8 +301,8 @@ class AssociationConfig:
                                             "wider gate of every landmark an unknown-id observation creates a "
                                             "landmark; >= gate_probability.")
     confirm_observations: int = param(3, 1, 1000, doc="Observations that confirm a tentative landmark.")
-    tentative_timeout: int = param(20, 1, 1000000, doc="Unconfirmed landmarks older than this many steps are "
-                                   "pruned.")
+    tentative_timeout: int = param(20, 1, 1000000, doc="Unconfirmed landmarks made without an id older than "
+                                   "this many steps are pruned.")
     min_observations_for_weighting: int = param(2, 1, 1000, doc="Landmarks seen fewer times do not weight "
                                                 "particles.")
     max_landmarks: int = param(5000, 1, 1000000, doc="Map size limit; further new landmarks are dropped "

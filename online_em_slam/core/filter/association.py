@@ -226,9 +226,9 @@ def nearest_first(ranges: np.ndarray, limit: int) -> np.ndarray:
 
 
 def creations(plan, y: np.ndarray, mean_sensor: np.ndarray, table, assoc: AssociationConfig, merge_radius: float,
-              drop, drops) -> tuple[np.ndarray, list[int]]:
-    """(positions (K, 2), ids) of the landmarks a scan's plan creates, by inverting h at the
-    mean sensor pose.
+              drop, drops) -> tuple[np.ndarray, list[int], np.ndarray]:
+    """(positions (K, 2), ids, prunable (K,)) of the landmarks a scan's plan creates, by
+    inverting h at the mean sensor pose; prunable: created without an id from the sensor.
 
     Unknown-id creations closer than ``merge_radius`` are merged first (counted in
     ``drops`` as ``merged_new_landmark``); of the rest the ``max_new_landmarks_per_scan``
@@ -250,6 +250,7 @@ def creations(plan, y: np.ndarray, mean_sensor: np.ndarray, table, assoc: Associ
     ids = [int(i) for i in known_ids[keep[:n_given]]]
     ids += table.next_ids(int(keep[n_given:].sum()), ids)
     plan.create_obs, positions = obs_idx[keep], positions[keep]
+    prunable = np.arange(len(ids)) >= len(ids) - int(keep[n_given:].sum())        # the fresh ids come last
     room = max(assoc.max_landmarks - len(table), 0)
     drop("map_full", len(ids) - room)
-    return positions[:room], ids[:room]
+    return positions[:room], ids[:room], prunable[:room]

@@ -261,9 +261,9 @@ class OnlineEMSlam:
         return obs.subset(keep) if not keep.all() else obs
 
     # ------------------------------------------------------------------ map rows
-    def _add_landmarks(self, positions: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    def _add_landmarks(self, positions: np.ndarray, ids: np.ndarray, prunable) -> np.ndarray:
         """Append landmarks to the table and to the M-step's per-landmark state; their rows."""
-        rows = self._map.add(positions, ids, self._step)
+        rows = self._map.add(positions, ids, self._step, prunable)
         self._m_step.add_landmarks(rows.size)
         return rows
 
@@ -407,9 +407,9 @@ class OnlineEMSlam:
             drop("relocalising", len(plan.create_obs))
             return np.zeros(0, dtype=int)
         radius = 2.0 * self._noise.noise_config().sigma_range
-        positions, ids = creations(plan, y, mean_sensor(), self._map, self.config.association, radius, drop,
-                                   self.drops)
-        return self._add_landmarks(positions, np.array(ids)) if ids else np.zeros(0, dtype=int)
+        positions, ids, prunable = creations(plan, y, mean_sensor(), self._map, self.config.association, radius,
+                                             drop, self.drops)
+        return self._add_landmarks(positions, np.array(ids), prunable) if ids else np.zeros(0, dtype=int)
 
     def _prune_tentative(self) -> int:
         assoc = self.config.association

@@ -33,8 +33,8 @@ class FleetLandmarkTable(LandmarkTable):
 
     clock: Callable[[], int] = field(default=lambda: 0, repr=False, compare=False)
 
-    def add(self, positions: np.ndarray, ids: np.ndarray, step: int) -> np.ndarray:
-        return super().add(positions, ids, self.clock())
+    def add(self, positions: np.ndarray, ids: np.ndarray, step: int, prunable=True) -> np.ndarray:
+        return super().add(positions, ids, self.clock(), prunable)
 
     def stale(self, step: int, confirm_observations: int, tentative_timeout: int) -> np.ndarray:
         return super().stale(self.clock(), confirm_observations, tentative_timeout)

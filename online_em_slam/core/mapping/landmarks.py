@@ -14,21 +14,25 @@ import numpy as np
 
 @dataclass
 class LandmarkTable:
-    """theta (M, 2), ids (M,), observation counts, creation step, confirmed flag."""
+    """theta (M, 2), ids (M,), observation counts, creation step, confirmed flag, and whether an
+    unconfirmed landmark may be pruned: one created from an observation without an id may be
+    noise, one whose id the sensor read is known to exist and waits to be seen again (as the
+    baselines' LandmarkBook)."""
 
     theta: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     n_obs: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     created: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     confirmed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    prunable: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
-    _ROW_FIELDS = ("theta", "ids", "n_obs", "created", "confirmed")
+    _ROW_FIELDS = ("theta", "ids", "n_obs", "created", "confirmed", "prunable")
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
 
-    def add(self, positions: np.ndarray, ids: np.ndarray, step: int) -> np.ndarray:
-        """Append landmarks at ``positions`` (k, 2); returns their rows."""
+    def add(self, positions: np.ndarray, ids: np.ndarray, step: int, prunable=True) -> np.ndarray:
+        """Append landmarks at ``positions`` (k, 2), ``prunable`` (k,) or one flag for all; their rows."""
         k = positions.shape[0]
         start = len(self)
         self.theta = np.vstack([self.theta, positions.reshape(k, 2)])
@@ -36,6 +40,7 @@ class LandmarkTable:
         self.n_obs = np.concatenate([self.n_obs, np.zeros(k, dtype=np.int64)])
         self.created = np.concatenate([self.created, np.full(k, step, dtype=np.int64)])
         self.confirmed = np.concatenate([self.confirmed, np.zeros(k, dtype=bool)])
+        self.prunable = np.concatenate([self.prunable, np.broadcast_to(np.asarray(prunable, dtype=bool), (k,))])
         return np.arange(start, start + k)
 
     def keep(self, keep: np.ndarray) -> None:
@@ -57,6 +62,6 @@ class LandmarkTable:
         return list(range(start, start + count))
 
     def stale(self, step: int, confirm_observations: int, tentative_timeout: int) -> np.ndarray:
-        """Confirm landmarks seen often enough; True for unconfirmed ones past their timeout."""
+        """Confirm landmarks seen often enough; True for unconfirmed prunable ones past their timeout."""
         self.confirmed |= self.n_obs >= confirm_observations
-        return ~self.confirmed & (step - self.created > tentative_timeout)
+        return ~self.confirmed & self.prunable & (step - self.created > tentative_timeout)
