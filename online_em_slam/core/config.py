@@ -292,6 +292,8 @@ class AssociationConfig:
                                O(M^2) in memory, so this bounds what one hostile scan
                                adds, and with ``tentative_timeout`` what a sustained
                                flood keeps: at most this times (timeout + 1) tentative rows.
+    merge_probability / merge_radius: duplicate landmarks merged at segment ends
+                               (em/merge.py, docs/METHOD.md "Duplicate landmarks").
     """
 
     # Both gates are chi-square quantiles: a probability of 1 is an infinite gate.
@@ -316,6 +318,12 @@ class AssociationConfig:
     max_new_landmarks_per_scan: int = param(50, 1, 100000, doc="Landmarks one scan may create; the nearest "
                                             "are kept, the others dropped (new_landmark_limit). Bounds the "
                                             "growth of the O(M^2) map system by a flood of unknown points.")
+    merge_probability: float = param(0.999, 0.0, 1.0, hi_open=True, doc="Two confirmed landmarks made "
+                                     "without an id, never seen in one scan, are merged when their difference "
+                                     "lies within this chi-square(2) gate of the map's joint Gaussian (a loop "
+                                     "closure; observed M-step in covariance form, one robot); 0: never.")
+    merge_radius: float = param(2.0, 0.0, 1000.0, lo_open=True, doc="Merge candidates are looked for this close "
+                                "(m) to the landmarks a segment saw: a bound on the search, the gate decides.")
 
     def validate(self, prefix: str = "association") -> None:
         check_fields(self, prefix, {"new_landmark_probability": {"lo": self.gate_probability, "lo_open": False}})

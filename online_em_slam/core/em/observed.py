@@ -24,6 +24,7 @@ from ..models.observation import inv_det_2x2, landmark_jacobian, sensor_poses
 from .observed_covariance import ObservedCovariance
 from .observed_information import ObservedInformation
 from .segment_factors import POSE_DIM, StepFactors, motion_residual
+from .merge import MAX_MERGES, DuplicateMerger
 from .segment_message import SegmentMessage
 from .statistics import STAT_DIM, unpack
 
@@ -50,6 +51,12 @@ class ObservedInformationEM:
         # Complete-data information per landmark, sum of H^T Pbar H: its inverse is the
         # landmark's uncertainty relative to the poses it was seen from (the gate's term).
         self.information = np.zeros((0, 2, 2))
+        # Duplicates merged (merge.py) for one robot whose map no other node shares, in covariance form.
+        assoc, single = config.association, np.ndim(initial_pose) == 1
+        self.merger = (DuplicateMerger(assoc.merge_probability, assoc.merge_radius)
+                       if assoc.merge_probability > 0 and config.em.map_form == "covariance" and single else None)
+        self._recent = np.zeros(0, dtype=bool)
+        self.merges = 0
         self.block_index = 1
         self.block_end = config.em.block_initial_length
         self.failed_solves = 0
@@ -62,10 +69,12 @@ class ObservedInformationEM:
     def add_landmarks(self, count: int) -> None:
         self.system.add_landmarks(count)
         self.information = np.concatenate([self.information, np.zeros((count, 2, 2))])
+        self._recent = np.concatenate([self._recent, np.zeros(count, dtype=bool)])
 
     def keep_landmarks(self, keep: np.ndarray) -> None:
         self.system.keep_landmarks(keep)
         self.information = self.information[keep]
+        self._recent = self._recent[keep]
 
     def update(self, data: FilterStepData, table: LandmarkTable, robot: int = 0) -> np.ndarray | None:
         """Add the step's factors; at a segment end integrate its poses out and maybe solve.
@@ -73,6 +82,11 @@ class ObservedInformationEM:
         Returns ``robot``'s pose correction; the other robots' key poses keep their
         linearisation points (their corrections stay in the system until their own solve)."""
         self.system.add_step(self._step_factors(data, table), robot)
+        if self.merger is not None and data.rows.size:
+            self._recent[data.rows] = True
+            unnamed = data.rows[table.prunable[data.rows]]       # only landmarks made without an id merge
+            if unnamed.size > 1:
+                self.merger.seen_together(table.ids[unnamed])
         if not self._segment_ends(data.step, robot):
             return None
         self._send(self.system.close_segment(table.theta, robot), table, robot)
@@ -86,7 +100,38 @@ class ObservedInformationEM:
         pose_correction = key_corrections[POSE_DIM * robot:POSE_DIM * (robot + 1)]
         _take_solution(table, theta)
         self.system.move_key(pose_correction, robot)
+        if self.merger is not None:
+            pose_correction = pose_correction + self._merge_duplicates(table, robot)
         return pose_correction
+
+    def _merge_duplicates(self, table: LandmarkTable, robot: int) -> np.ndarray:
+        """Duplicates among the landmarks the segment saw merged (merge.py), each by conditioning
+        the map's Gaussian; the key pose's correction that follows."""
+        correction = np.zeros(POSE_DIM)
+        for _ in range(MAX_MERGES if self.outbox is None else 0):
+            pair = self.merger.best_pair(table, self.system, np.flatnonzero(self._recent))
+            if pair is None:
+                break
+            i, j = pair
+            self.system.condition_equal(i, j)
+            self.merger.merged(int(table.ids[i]), int(table.ids[j]))
+            self.information[i] += self.information[j]
+            table.n_obs[i] += table.n_obs[j]
+            keep = np.arange(len(table)) != j
+            table.keep(keep)
+            self.information, self._recent = self.information[keep], self._recent[keep]
+            self.merges += 1
+            solution = self.system.solve()
+            if solution is None:
+                self.failed_solves += 1
+                break
+            theta, keys = solution
+            _take_solution(table, theta)
+            shift = keys[POSE_DIM * robot:POSE_DIM * (robot + 1)].copy()
+            self.system.move_key(shift, robot)
+            correction += shift
+        self._recent[:] = False
+        return correction
 
     def _step_factors(self, data: FilterStepData, table: LandmarkTable) -> StepFactors:
         """Motion and observation factors at the weighted mean pose xbar_t.

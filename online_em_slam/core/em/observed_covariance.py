@@ -32,6 +32,7 @@ import numpy as np
 from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 from ..config import SensorConfig
+from ..models.observation import inv_det_2x2
 from .segment_factors import MIN_PRIOR_STD, POSE_DIM, SegmentFactors, SegmentSystem
 
 UNSTORED = -1
@@ -187,6 +188,38 @@ class ObservedCovariance(SegmentFactors):
         pairs = starts[:, None] + np.arange(2)
         self.cov[pairs[:, :, None], pairs[:, None, :]] = np.linalg.pinv(A, hermitian=True)
         self.mean[pairs] = theta
+
+    def equality_d2(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """d2 of the hypotheses theta_i = theta_j (pairs of stored landmarks' rows (P,), (P,))
+        against the joint Gaussian (P,); inf where S is singular."""
+        a, S = self._difference(np.atleast_1d(i), np.atleast_1d(j))
+        inv, det = inv_det_2x2(S)
+        d2 = np.einsum("pi,pij,pj->p", a, inv, a)
+        return np.where(det > 1e-300, d2, np.inf)
+
+    def condition_equal(self, i: int, j: int) -> None:
+        """The Gaussian conditioned on theta_i = theta_j (exact: a linear constraint), then j
+        deleted (its information now i's): mu -= K a, Sigma -= K B, B = Sigma_i: - Sigma_j:,
+        K = B^T S^-1."""
+        top = self._top
+        si, sj = self.slot[i] + np.arange(2), self.slot[j] + np.arange(2)
+        a, S = self._difference(np.asarray(i), np.asarray(j))
+        B = self.cov[si, :top] - self.cov[sj, :top]                   # (2, top)
+        K = np.linalg.solve(S, B).T                                     # (top, 2)
+        self.mean[:top] -= K @ a
+        self.cov[:top, :top] -= K @ B
+        self.cov[:top, :top] = 0.5 * (self.cov[:top, :top] + self.cov[:top, :top].T)
+        keep = np.ones(self.slot.size, dtype=bool)
+        keep[j] = False
+        self.keep_landmarks(keep)
+
+    def _difference(self, i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """a = mu_i - mu_j (..., 2) and S = Sigma_ii + Sigma_jj - Sigma_ij - Sigma_ji (..., 2, 2)."""
+        si, sj = self.slot[i][..., None] + np.arange(2), self.slot[j][..., None] + np.arange(2)
+        c = self.cov
+        block = lambda r, q: c[r[..., :, None], q[..., None, :]]          # noqa: E731
+        S = block(si, si) + block(sj, sj) - block(si, sj) - block(sj, si)
+        return self.mean[si] - self.mean[sj], 0.5 * (S + np.swapaxes(S, -1, -2))
 
     def landmark_covariances(self) -> np.ndarray:
         """Marginal covariances (M, 2, 2): Sigma's diagonal blocks; NaN where not yet stored."""

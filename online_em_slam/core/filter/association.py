@@ -23,8 +23,8 @@ from scipy.spatial import cKDTree
 
 from ..config import AssociationConfig, ObservationNoiseConfig
 from ..models.angles import wrap_angle
-from ..models.observation import (innovation, inverse_observation, landmark_jacobian, mahalanobis_2d,
-                                  predict_observation)
+from ..models.observation import (chi_square_2_quantile, innovation, inverse_observation, landmark_jacobian,
+                                  mahalanobis_2d, predict_observation)
 from ..weighted import weighted_outer, weighted_pose_mean, weighted_sum
 
 NEW_LANDMARK = -1
@@ -51,13 +51,6 @@ class Gates:
         if self.dof is None:
             return d2 + logdet
         return (self.dof + 2.0) * np.log1p(d2 / self.dof) + logdet
-
-
-def chi_square_2_quantile(probability: float) -> float:
-    """The d2 below which a chi-square(2) variable falls with ``probability``: its CDF is
-    1 - exp(-d2 / 2), so -2 log(1 - p) (scipy.stats' chi2.ppf to an ulp, without the import
-    of scipy.stats, about a third of the node's start)."""
-    return float(-2.0 * math.log1p(-probability))
 
 
 @lru_cache(maxsize=8)

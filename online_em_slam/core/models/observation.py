@@ -141,6 +141,13 @@ def information_noise(noise: ObservationNoiseConfig) -> ObservationNoiseConfig:
                    sigma_bearing=noise.sigma_bearing * f_b, rho=noise.rho * f_r * f_b, serial_correlation=(0.0, 0.0))
 
 
+def chi_square_2_quantile(probability: float) -> float:
+    """The d2 below which a chi-square(2) variable falls with ``probability``: its CDF is
+    1 - exp(-d2 / 2), so -2 log(1 - p) (scipy.stats' chi2.ppf to an ulp, without the import
+    of scipy.stats, about a third of the node's start)."""
+    return float(-2.0 * math.log1p(-probability))
+
+
 def inv_det_2x2(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Closed-form inverse and determinant of 2x2 matrices (..., 2, 2)."""
     det = S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]
