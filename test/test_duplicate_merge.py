@@ -109,3 +109,13 @@ def test_merging_is_for_one_robot_in_covariance_form():
     assert ObservedInformationEM(config, np.zeros(3)).merger is None
     config = SlamConfig(association=AssociationConfig(merge_probability=0.0))
     assert ObservedInformationEM(config, np.zeros(3)).merger is None
+
+
+def test_no_merge_is_offered_where_the_difference_has_no_spread(forms):
+    import copy
+    _, cov = forms
+    cov = copy.deepcopy(cov)
+    si, sj = cov.slot[0] + np.arange(2), cov.slot[1] + np.arange(2)
+    cov.cov[np.ix_(sj, sj)] = cov.cov[np.ix_(si, si)]                 # theta_0 - theta_1 exactly known
+    cov.cov[np.ix_(si, sj)] = cov.cov[np.ix_(sj, si)] = cov.cov[np.ix_(si, si)]
+    assert np.isinf(cov.equality_d2(np.array([0]), np.array([1]))[0])

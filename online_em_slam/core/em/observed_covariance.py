@@ -191,11 +191,13 @@ class ObservedCovariance(SegmentFactors):
 
     def equality_d2(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """d2 of the hypotheses theta_i = theta_j (pairs of stored landmarks' rows (P,), (P,))
-        against the joint Gaussian (P,); inf where S is singular."""
+        against the joint Gaussian (P,); inf where S is too ill-conditioned to condition on
+        (its condition number beyond about 1e10), so that no merge can break the Gaussian."""
         a, S = self._difference(np.atleast_1d(i), np.atleast_1d(j))
         inv, det = inv_det_2x2(S)
         d2 = np.einsum("pi,pij,pj->p", a, inv, a)
-        return np.where(det > 1e-300, d2, np.inf)
+        trace = S[:, 0, 0] + S[:, 1, 1]
+        return np.where((det > 1e-10 * trace * trace) & (trace > 0) & np.isfinite(d2), d2, np.inf)
 
     def condition_equal(self, i: int, j: int) -> None:
         """The Gaussian conditioned on theta_i = theta_j (exact: a linear constraint), then j
