@@ -70,3 +70,12 @@ def test_a_robot_put_elsewhere_ends_the_fleets_replay():
             feed(_Robot(fleet, robot), scenario.steps[k])
     assert not any(fleet.robot(r).learned_noise()["warmup_replayed"] for r in range(2))
 
+
+
+def test_after_the_fleets_replay_a_bad_motion_input_is_still_counted():
+    scenarios = fleet_scenarios(ScenarioConfig(n_steps=600, seed=0, outlier_probability=0.1, **TRUTH), 2)
+    fleet = _run_fleet(scenarios, _learning(scenarios[0]))
+    assert fleet.robot(1).learned_noise()["warmup_replayed"]
+    before = fleet.drops["non_finite_control"]
+    fleet.add_control(1, scenarios[1].steps[-1].stamp + 0.1, np.array([np.nan, 0.0]))
+    assert fleet.drops["non_finite_control"] == before + 1

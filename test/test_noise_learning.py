@@ -824,3 +824,14 @@ def test_a_motion_scale_the_data_put_below_the_floor_comes_into_use_at_the_floor
     assert learner.motion_scale_error() == math.inf and learner._scale_beyond_limit(low, high)
     learner.motion.squared_weights = 1.0                   # one sample: not known
     assert not learner._scale_beyond_limit(low, high)
+
+
+def test_after_the_replay_a_bad_motion_input_is_still_counted():
+    """The replayed estimator's motion input counted into the replay's own counter, lost from
+    ``drops`` (and /diagnostics) once the replay took over: it counts into the estimator's."""
+    scenario = simulate(ScenarioConfig(seed=1, n_steps=600, outlier_probability=0.1, **TRUTH))
+    slam = run(scenario, started_wrong(slam_config_for(scenario, num_particles=PARTICLES), 3.0))
+    assert slam.learned_noise()["warmup_replayed"]
+    before = slam.drops["non_finite_control"]
+    slam.add_control(scenario.steps[-1].stamp + 0.1, np.array([np.nan, 0.0]))
+    assert slam.drops["non_finite_control"] == before + 1

@@ -129,5 +129,5 @@ class WarmupReplay:
         drops = estimator.drops
         estimator.__dict__.clear()
         estimator.__dict__.update(replayed.__dict__)
-        estimator.drops = drops
+        estimator.drops = estimator._input.drops = drops   # the motion input counts into it too
         estimator._warmup.replayed = True

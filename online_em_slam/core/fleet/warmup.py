@@ -57,6 +57,6 @@ class FleetWarmupReplay(WarmupReplay):
         fleet.__dict__.clear()
         fleet.__dict__.update(replayed.__dict__)
         for robot, counts in zip(fleet._robots, drops):
-            robot.drops = counts
+            robot.drops = robot._input.drops = counts       # the motion input counts into it too
             robot._warmup.replayed = True          # reported per robot (learned_noise)
         fleet._warmup.replayed = True
