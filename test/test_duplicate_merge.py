@@ -4,6 +4,8 @@ The merge conditions the map's Gaussian on theta_i = theta_j; checked against th
 Gaussian in information form with the constraint as a stiff factor (k A'A, A = [I, -I]),
 solved and inverted densely.  The test's d2 against A Sigma A' of the dense covariance.
 """
+import copy
+
 import numpy as np
 import pytest
 
@@ -42,7 +44,6 @@ def test_the_merge_test_is_the_constraints_chi_square_under_the_joint_gaussian(f
 
 
 def test_merging_conditions_the_gaussian_on_the_two_landmarks_being_one(forms):
-    import copy
     info, cov = forms
     cov = copy.deepcopy(cov)
     i, j = 1, 3
@@ -112,7 +113,6 @@ def test_merging_is_for_one_robot_in_covariance_form():
 
 
 def test_no_merge_is_offered_where_the_difference_has_no_spread(forms):
-    import copy
     _, cov = forms
     cov = copy.deepcopy(cov)
     si, sj = cov.slot[0] + np.arange(2), cov.slot[1] + np.arange(2)

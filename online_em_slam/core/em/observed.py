@@ -21,10 +21,10 @@ from ..config import SlamConfig
 from .step import FilterStepData
 from ..mapping.landmarks import LandmarkTable
 from ..models.observation import inv_det_2x2, landmark_jacobian, sensor_poses
+from .merge import MAX_MERGES, DuplicateMerger
 from .observed_covariance import ObservedCovariance
 from .observed_information import ObservedInformation
 from .segment_factors import POSE_DIM, StepFactors, motion_residual
-from .merge import MAX_MERGES, DuplicateMerger
 from .segment_message import SegmentMessage
 from .statistics import STAT_DIM, unpack
 
