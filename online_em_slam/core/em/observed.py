@@ -55,7 +55,6 @@ class ObservedInformationEM:
         assoc, single = config.association, np.ndim(initial_pose) == 1
         self.merger = (DuplicateMerger(assoc.merge_probability, assoc.merge_radius)
                        if assoc.merge_probability > 0 and config.em.map_form == "covariance" and single else None)
-        self._recent = np.zeros(0, dtype=bool)
         self.merges = 0
         self.block_index = 1
         self.block_end = config.em.block_initial_length
@@ -69,12 +68,10 @@ class ObservedInformationEM:
     def add_landmarks(self, count: int) -> None:
         self.system.add_landmarks(count)
         self.information = np.concatenate([self.information, np.zeros((count, 2, 2))])
-        self._recent = np.concatenate([self._recent, np.zeros(count, dtype=bool)])
 
     def keep_landmarks(self, keep: np.ndarray) -> None:
         self.system.keep_landmarks(keep)
         self.information = self.information[keep]
-        self._recent = self._recent[keep]
 
     def update(self, data: FilterStepData, table: LandmarkTable, robot: int = 0) -> np.ndarray | None:
         """Add the step's factors; at a segment end integrate its poses out and maybe solve.
@@ -82,14 +79,14 @@ class ObservedInformationEM:
         Returns ``robot``'s pose correction; the other robots' key poses keep their
         linearisation points (their corrections stay in the system until their own solve)."""
         self.system.add_step(self._step_factors(data, table), robot)
-        if self.merger is not None and data.rows.size:
-            self._recent[data.rows] = True
+        if self.merger is not None and data.rows.size > 1:
             unnamed = data.rows[table.prunable[data.rows]]       # only landmarks made without an id merge
             if unnamed.size > 1:
                 self.merger.seen_together(table.ids[unnamed])
         if not self._segment_ends(data.step, robot):
             return None
-        self._send(self.system.close_segment(table.theta, robot), table, robot)
+        segment = self.system.close_segment(table.theta, robot)
+        self._send(segment, table, robot)
         if not self._solve_now(data.step):
             return None
         solution = self.system.solve()
@@ -100,16 +97,17 @@ class ObservedInformationEM:
         pose_correction = key_corrections[POSE_DIM * robot:POSE_DIM * (robot + 1)]
         _take_solution(table, theta)
         self.system.move_key(pose_correction, robot)
-        if self.merger is not None:
-            pose_correction = pose_correction + self._merge_duplicates(table, robot)
+        if self.merger is not None and segment is not None and self.outbox is None:
+            pose_correction = pose_correction + self._merge_duplicates(table, robot, segment.seen)
         return pose_correction
 
-    def _merge_duplicates(self, table: LandmarkTable, robot: int) -> np.ndarray:
-        """Duplicates among the landmarks the segment saw merged (merge.py), each by conditioning
-        the map's Gaussian; the key pose's correction that follows."""
+    def _merge_duplicates(self, table: LandmarkTable, robot: int, recent: np.ndarray) -> np.ndarray:
+        """Duplicates among the ``recent`` rows (the landmarks the segment saw) merged (merge.py),
+        each by conditioning the map's Gaussian, then deleted as a pruned landmark is; the key
+        pose's correction that follows."""
         correction = np.zeros(POSE_DIM)
-        for _ in range(MAX_MERGES if self.outbox is None else 0):
-            pair = self.merger.best_pair(table, self.system, np.flatnonzero(self._recent))
+        for _ in range(MAX_MERGES):
+            pair = self.merger.best_pair(table, self.system, recent)
             if pair is None:
                 break
             i, j = pair
@@ -119,7 +117,8 @@ class ObservedInformationEM:
             table.n_obs[i] += table.n_obs[j]
             keep = np.arange(len(table)) != j
             table.keep(keep)
-            self.information, self._recent = self.information[keep], self._recent[keep]
+            self.keep_landmarks(keep)
+            recent = recent[recent != j] - (recent[recent != j] > j)
             self.merges += 1
             solution = self.system.solve()
             if solution is None:
@@ -130,7 +129,6 @@ class ObservedInformationEM:
             shift = keys[POSE_DIM * robot:POSE_DIM * (robot + 1)].copy()
             self.system.move_key(shift, robot)
             correction += shift
-        self._recent[:] = False
         return correction
 
     def _step_factors(self, data: FilterStepData, table: LandmarkTable) -> StepFactors:

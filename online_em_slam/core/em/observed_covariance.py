@@ -200,9 +200,9 @@ class ObservedCovariance(SegmentFactors):
         return np.where((det > 1e-10 * trace * trace) & (trace > 0) & np.isfinite(d2), d2, np.inf)
 
     def condition_equal(self, i: int, j: int) -> None:
-        """The Gaussian conditioned on theta_i = theta_j (exact: a linear constraint), then j
-        deleted (its information now i's): mu -= K a, Sigma -= K B, B = Sigma_i: - Sigma_j:,
-        K = B^T S^-1."""
+        """The Gaussian conditioned on theta_i = theta_j (exact: a linear constraint): mu -= K a,
+        Sigma -= K B, B = Sigma_i: - Sigma_j:, K = B^T S^-1.  j is then a copy of i, to be
+        deleted as a pruned landmark is (keep_landmarks)."""
         top = self._top
         si, sj = self.slot[i] + np.arange(2), self.slot[j] + np.arange(2)
         a, S = self._difference(np.asarray(i), np.asarray(j))
@@ -211,9 +211,6 @@ class ObservedCovariance(SegmentFactors):
         self.mean[:top] -= K @ a
         self.cov[:top, :top] -= K @ B
         self.cov[:top, :top] = 0.5 * (self.cov[:top, :top] + self.cov[:top, :top].T)
-        keep = np.ones(self.slot.size, dtype=bool)
-        keep[j] = False
-        self.keep_landmarks(keep)
 
     def _difference(self, i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """a = mu_i - mu_j (..., 2) and S = Sigma_ii + Sigma_jj - Sigma_ij - Sigma_ji (..., 2, 2)."""
