@@ -12,7 +12,9 @@ import pytest
 from online_em_slam.core.config import AssociationConfig, SlamConfig
 from online_em_slam.core.em.merge import DuplicateMerger
 from online_em_slam.core.em.observed import ObservedInformationEM
+from online_em_slam.core.filter.slam import OnlineEMSlam
 from online_em_slam.core.mapping.landmarks import LandmarkTable
+from online_em_slam.core.types import Observations, split_decisions
 from test_observed_covariance import _both
 from test_observed_information import _problem
 
@@ -120,3 +122,21 @@ def test_no_merge_is_offered_where_the_difference_has_no_spread(forms):
     cov.cov[np.ix_(sj, sj)] = cov.cov[np.ix_(si, si)]                 # theta_0 - theta_1 exactly known
     cov.cov[np.ix_(si, sj)] = cov.cov[np.ix_(sj, si)] = cov.cov[np.ix_(si, si)]
     assert np.isinf(cov.equality_d2(np.array([0]), np.array([1]))[0])
+
+
+class _MergingEveryStep(ObservedInformationEM):
+    """The observed M-step as if it merged a duplicate at every update."""
+
+    def update(self, data, table, robot=0):
+        correction = super().update(data, table, robot)
+        self.merges += 1
+        return correction
+
+
+def test_a_merge_is_counted_among_the_estimators_decisions():
+    slam = OnlineEMSlam(SlamConfig(), m_step_factory=lambda config, pose, rng: _MergingEveryStep(config, pose))
+    for step in range(1, 4):
+        slam.add_control(0.2 * step, np.array([1.0, 0.0]))
+        slam.add_observations(0.2 * step, Observations(np.array([5.0]), np.array([0.1])))
+    drops, decided = split_decisions(slam.drops)
+    assert decided["merged_duplicate_landmark"] == 3 and "merged_duplicate_landmark" not in drops

@@ -15,10 +15,12 @@ POINT_STD_LIMITS = {"range_std": (1e-6, 100.0), "bearing_std": (1e-6, math.pi)}
 #: Counted reasons that are the estimator's decisions about valid input, not input lost,
 #: refused or faulty: a scan that saw nothing, a reading beyond the configured range, an
 #: observation between the association and creation gates, a creation merged or held back,
-#: no creation while relocalising, controls the odometry model does not use.  /diagnostics
+#: two landmarks found to be one and merged (em/merge.py), no creation while relocalising,
+#: controls the odometry model does not use.  /diagnostics
 #: reports them as ``decided.*``, apart from the drops that turn its status to WARN.
 DECISIONS = frozenset({"empty_cloud", "observation_out_of_range", "ambiguous_association", "merged_new_landmark",
-                       "new_landmark_limit", "relocalising", "control_ignored_by_odometry_model"})
+                       "merged_duplicate_landmark", "new_landmark_limit", "relocalising",
+                       "control_ignored_by_odometry_model"})
 
 
 def split_decisions(counts: dict) -> tuple[dict, dict]:

@@ -22,8 +22,7 @@ from ..models import motion as motion_models
 from ..models.angles import wrap_angle
 from .association import Gates, candidate_rows, creations, plan_associations, predicted_measurements
 from ..config import SlamConfig
-from ..em.complete import CompleteDataEM
-from ..em.observed import ObservedInformationEM
+from ..em.m_steps import make_m_step
 from ..em.step import FilterStepData, MStep
 from .input_contract import MotionInput, usable_observations
 from ..mapping import mapfile, persistence
@@ -36,13 +35,6 @@ from .warmup import WarmupReplay
 from .particles import effective_sample_size, localised, normalize_log_weights, sample_gaussians, systematic_resample
 from ..weighted import weighted_pose_covariance, weighted_pose_mean
 from ..types import LandmarkMap, Observations, PoseEstimate, StepReport
-
-
-def make_m_step(config: SlamConfig, initial_pose: np.ndarray, rng: np.random.Generator) -> MStep:
-    """The M-step piece selected by ``em.m_step``."""
-    if config.em.m_step == "observed":
-        return ObservedInformationEM(config, initial_pose)
-    return CompleteDataEM(config, config.filter.num_particles, rng)
 
 
 class OnlineEMSlam:
@@ -289,7 +281,10 @@ class OnlineEMSlam:
         pose_correction = None
         if not self._relocalising:      # a cloud still looking for its pose teaches neither map nor noise
             self._noise.update(data, self._map.n_obs[rows], self._map.ids[rows])   # noise statistics (em/noise/)
+            merges = getattr(self._m_step, "merges", 0)      # duplicates merged (em/merge.py): decisions
             pose_correction = self._m_step.update(data, self._map)
+            if getattr(self._m_step, "merges", 0) > merges:
+                self.drops["merged_duplicate_landmark"] += self._m_step.merges - merges
         self._commit(particles, weights, pose_correction, data)
         if self._relocalising and rows.size:
             self._relocalising = not localised(particles, weights, self.config.filter.relocalisation_tolerance)
