@@ -237,6 +237,9 @@ class EMConfig:
                     estimate for its next factors.
     map_form:       how the observed M-step holds the map's Gaussian: ``information``
                     (observed_information.py) or ``covariance`` (observed_covariance.py).
+    segment_iterations: Gauss-Newton iterations of a segment (its poses and landmarks
+                    relinearised at the last solution) before its poses are integrated
+                    out (1: linearised once, at the filter's mean poses).
     """
 
     algorithm: str = param("online", choices=EM_ALGORITHMS, doc="online (stochastic approximation), block or "
@@ -260,9 +263,15 @@ class EMConfig:
     map_form: str = param("covariance", choices=MAP_FORMS, doc="Observed M-step: the map's Gaussian held as "
                           "information (a Cholesky solve per segment, O(M^3)) or covariance (mean and covariance "
                           "updated per segment, O(M^2)); the same estimate.")
+    segment_iterations: int = param(1, 1, 20, doc="Observed M-step, covariance form, one robot: Gauss-Newton iterations of "
+                                    "a segment, each relinearising its poses and landmarks at the last solution, "
+                                    "before its poses are integrated out (a fixed lag of one segment); 1: linearised "
+                                    "once.")
 
     def validate(self, prefix: str = "em") -> None:
         check_fields(self, prefix)
+        if self.segment_iterations > 1 and self.map_form != "covariance":
+            raise ValueError(f"{prefix}.segment_iterations > 1 needs {prefix}.map_form covariance")
 
 
 @dataclass

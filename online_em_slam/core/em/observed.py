@@ -45,14 +45,17 @@ class ObservedInformationEM:
     def __init__(self, config: SlamConfig, initial_pose: np.ndarray) -> None:
         self.config = config
         store = ObservedCovariance if config.em.map_form == "covariance" else ObservedInformation
+        single = np.ndim(initial_pose) == 1
+        # The fixed lag (em.segment_iterations) is measured for one robot; a fleet folds once.
         self.system = store(config.sensor, initial_pose, config.filter.initial_pose_std,
                             first_estimates=config.em.first_estimate_jacobians,
-                            relinearize_threshold=config.em.relinearize_threshold)
+                            relinearize_threshold=config.em.relinearize_threshold,
+                            iterations=config.em.segment_iterations if single else 1)
         # Complete-data information per landmark, sum of H^T Pbar H: its inverse is the
         # landmark's uncertainty relative to the poses it was seen from (the gate's term).
         self.information = np.zeros((0, 2, 2))
         # Duplicates merged (merge.py) for one robot whose map no other node shares, in covariance form.
-        assoc, single = config.association, np.ndim(initial_pose) == 1
+        assoc = config.association
         self.merger = (DuplicateMerger(assoc.merge_probability, assoc.merge_radius)
                        if assoc.merge_probability > 0 and config.em.map_form == "covariance" and single else None)
         self.merges = 0

@@ -44,8 +44,8 @@ class ObservedCovariance(SegmentFactors):
     """Covariance form over [dx_key_1 .. dx_key_R; theta] plus each robot's open segment."""
 
     def __init__(self, sensor: SensorConfig, initial_pose, initial_pose_std,
-                 first_estimates: bool = True, relinearize_threshold: float = np.inf) -> None:
-        super().__init__(sensor, initial_pose, first_estimates, relinearize_threshold)
+                 first_estimates: bool = True, relinearize_threshold: float = np.inf, iterations: int = 1) -> None:
+        super().__init__(sensor, initial_pose, first_estimates, relinearize_threshold, iterations)
         std = np.maximum(np.asarray(initial_pose_std, dtype=float), MIN_PRIOR_STD)
         capacity = self.key_dim + 64
         self.mean = np.zeros(capacity)                       # mu over the slots
@@ -123,6 +123,28 @@ class ObservedCovariance(SegmentFactors):
         self._update(T, L_T, l_T)
         self._append(T, N, C, c, P_NN)
         self._key_point_set(segment.pose, robot)
+
+    def segment_solution(self, segment: SegmentSystem, robot: int = 0) -> tuple[np.ndarray, np.ndarray] | None:
+        """(dx_1..dx_K (K, 3), theta_S (S, 2)): the mean of the segment's factor times the stored
+        Gaussian's marginal of [dx_key; theta_S stored] (Sigma_TT, mu_T), what :meth:`fold` and a
+        solve would give them; None if that system is singular or not finite."""
+        seen, n_pose = segment.seen, POSE_DIM * (segment.steps + 1)
+        stored = self.slot[seen] != UNSTORED
+        lm_local = n_pose + 2 * np.arange(seen.size)[:, None] + np.arange(2)
+        T_local = np.concatenate([np.arange(POSE_DIM), lm_local[stored].ravel()])
+        T = np.concatenate([np.arange(self._key(robot).start, self._key(robot).stop),
+                            (self.slot[seen[stored]][:, None] + np.arange(2)).ravel()])
+        info, vector = segment.local.copy(), segment.vector.copy()
+        try:
+            prior = np.linalg.inv(self.cov[np.ix_(T, T)])
+            info[np.ix_(T_local, T_local)] += prior
+            vector[T_local] += prior @ self.mean[T]
+            z = np.linalg.solve(info, vector)
+        except np.linalg.LinAlgError:
+            return None
+        if not np.all(np.isfinite(z)):
+            return None
+        return z[POSE_DIM:n_pose].reshape(-1, POSE_DIM), z[n_pose:].reshape(-1, 2)
 
     def _update(self, T: np.ndarray, L_T: np.ndarray, l_T: np.ndarray) -> None:
         """Step 3: the stored Gaussian times the factor exp(-z_T' L_T z_T / 2 + l_T' z_T)."""

@@ -26,8 +26,9 @@ class ObservedInformation(SegmentFactors):
     """
 
     def __init__(self, sensor: SensorConfig, initial_pose, initial_pose_std,
-                 first_estimates: bool = True, relinearize_threshold: float = np.inf) -> None:
-        super().__init__(sensor, initial_pose, first_estimates, relinearize_threshold)
+                 first_estimates: bool = True, relinearize_threshold: float = np.inf, iterations: int = 1) -> None:
+        # iterations: the base's segment_poses offers none here (EMConfig allows 1 only).
+        super().__init__(sensor, initial_pose, first_estimates, relinearize_threshold, iterations)
         std = np.maximum(np.asarray(initial_pose_std, dtype=float), MIN_PRIOR_STD)
         self._pending = 0                       # landmarks added, not yet in _info / _vector
         self.info = np.zeros((self.key_dim, self.key_dim))                      # (3R + 2M, 3R + 2M)

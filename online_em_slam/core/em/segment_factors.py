@@ -30,7 +30,7 @@ last are integrated out.  Two stores hold the same Gaussian: in information form
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.linalg import LinAlgError, cho_factor, cho_solve
@@ -41,6 +41,8 @@ from ..models.gaussian import symmetric_inverse_3x3
 from ..models.observation import innovation, landmark_jacobian, pose_jacobian, predict_observation, sensor_poses
 
 POSE_DIM = 3
+# A segment's Gauss-Newton iterations stop once no pose moves by more than this (m, rad).
+ITERATION_TOLERANCE = np.array([1e-4, 1e-4, 1e-5])
 # Floors of the first-pose prior: a start known exactly still needs a finite
 # information to pin the gauge (the map's frame).
 MIN_PRIOR_STD = np.array([1e-3, 1e-3, 1e-4])
@@ -97,10 +99,11 @@ class SegmentFactors:
     """
 
     def __init__(self, sensor: SensorConfig, initial_pose, first_estimates: bool = True,
-                 relinearize_threshold: float = np.inf) -> None:
+                 relinearize_threshold: float = np.inf, iterations: int = 1) -> None:
         self.sensor = sensor
         self.first_estimates = first_estimates
         self.relinearize_threshold = relinearize_threshold
+        self.iterations = iterations
         self.key_poses = np.asarray(initial_pose, dtype=float).reshape(-1, POSE_DIM).copy()   # xbar of each key
         self.key_firsts = self.key_poses.copy()                                 # their first estimates
         self.key_dim = POSE_DIM * self.key_poses.shape[0]                       # where theta starts
@@ -163,25 +166,79 @@ class SegmentFactors:
 
         The segment's poses see only the landmarks S observed in it: its factors go into a
         small system over [key, x_1..x_K, theta_S] (:meth:`segment_system`), which the store
-        folds into the stored Gaussian (``fold``).
+        folds into the stored Gaussian (``fold``).  With ``iterations`` > 1 the segment's
+        poses and landmarks are first relinearised at the solution (:meth:`_iterate`); the
+        key then moves back to the filter's pose, which the returned correction is relative to.
         """
-        segment = self.segment_system(theta, robot)
-        if segment is not None:
-            self.fold(segment, robot)
+        if not self.segments[robot]:
+            return None
+        filter_pose = self.segments[robot][-1].pose.copy()
+        segment = self.segment_system(self._iterate(theta, robot), robot)
+        self.fold(segment, robot)
+        shift = filter_pose - segment.pose
+        if np.any(shift):
+            self.move_key(shift, robot)
         return segment
+
+    def _iterate(self, theta: np.ndarray, robot: int) -> np.ndarray:
+        """Gauss-Newton on the segment under the stored Gaussian's prior: each iteration solves
+        the segment (the store's ``segment_solution``) and relinearises its poses and landmarks
+        at the solution, until no pose moves by ITERATION_TOLERANCE; the map the segment is
+        then closed at (``theta`` with the segment's landmarks moved).  A landmark's first
+        estimate (FEJ) is taken at that close, not at an iteration's point."""
+        first = self.landmark_first.copy()
+        for _ in range(self.iterations - 1):
+            segment = self._linearised(theta, robot)
+            solution = self.segment_solution(segment, robot)
+            if solution is None:
+                break
+            dx, theta_seen = solution
+            self._relinearise_steps(dx, robot)
+            theta = theta.copy()
+            theta[segment.seen] = theta_seen
+            if np.all(np.abs(dx) <= ITERATION_TOLERANCE):
+                break
+        self.landmark_first = first
+        return theta
+
+    def segment_solution(self, segment: SegmentSystem, robot: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The segment's pose corrections dx_1..dx_K (K, 3) and landmarks theta_S (S, 2) under
+        the stored prior; None: no iteration (a store that does not offer it)."""
+        return None
+
+    def _relinearise_steps(self, dx: np.ndarray, robot: int) -> None:
+        """Each buffered step's point xbar_t moved by dx_t (K, 3), its motion factor with it.
+
+        Every motion model moves a pose through its heading only: f(x, u) = x + A(phi) m(u),
+        A the rotation of the position.  So at x_{t-1} turned by d, f's move, F's lever and
+        Q's position block turn by d (F = I + s e_yaw^T: A F A^T = I + (A s) e_yaw^T)."""
+        segment = self.segments[robot]
+        old_previous = new_previous = self.key_poses[robot]
+        for t, step in enumerate(segment):
+            pose = step.pose + dx[t]
+            A = _yaw_rotation(new_previous[2] - old_previous[2])
+            predicted = new_previous + A @ (step.c + step.pose - old_previous)
+            segment[t] = replace(step, pose=pose, c=motion_residual(predicted, pose), F=A @ step.F @ A.T,
+                                 Q=A @ step.Q @ A.T)
+            old_previous, new_previous = step.pose, pose
 
     def segment_system(self, theta: np.ndarray, robot: int = 0) -> SegmentSystem | None:
         """``robot``'s buffered factors linearised at (xbar_t, theta) as one factor; the buffer empties."""
-        segment = self.segments[robot]
-        if not segment:
+        if not self.segments[robot]:
             return None
+        system = self._linearised(theta, robot)
+        self.segments[robot] = []
+        return system
+
+    def _linearised(self, theta: np.ndarray, robot: int) -> SegmentSystem:
+        """``robot``'s buffered factors linearised at (xbar_t, theta) as one factor."""
+        segment = self.segments[robot]
         seen, counts = np.unique(np.concatenate([s.rows for s in segment]), return_counts=True)
         n_pose = POSE_DIM * (len(segment) + 1)
         local = np.zeros((n_pose + 2 * seen.size,) * 2)
         local_vector = np.zeros(local.shape[0])
         self._add_motion_factors(local, local_vector, robot)
         self._add_observation_factors(local, local_vector, theta, n_pose, seen, robot)
-        self.segments[robot] = []
         return SegmentSystem(local, local_vector, self.key_poses[robot].copy(), segment[-1].pose.copy(), seen, counts)
 
     def _add_motion_factors(self, info: np.ndarray, vector: np.ndarray, robot: int) -> None:
@@ -252,6 +309,12 @@ def observation_factor(poses: np.ndarray, landmarks: np.ndarray, y: np.ndarray, 
     H_x = pose_jacobian(poses, landmarks, sensor)
     target = ytilde + np.einsum("pij,pj->pi", H_l, now)
     return np.concatenate([H_x, H_l], axis=-1), target
+
+
+def _yaw_rotation(angle: float) -> np.ndarray:
+    """(3, 3): the position turned by ``angle``, the yaw kept."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def motion_residual(predicted: np.ndarray, pose: np.ndarray) -> np.ndarray:
