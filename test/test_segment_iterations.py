@@ -23,7 +23,7 @@ from test_observed_information import DT, MOTION, PRIOR_STD, R, SENSOR, _problem
 Q = np.diag([0.05 ** 2, 0.05 ** 2, 0.01 ** 2])
 
 
-def _store(problem, iterations):
+def _store(problem, iterations, close=True):
     xbar, thetabar, controls, observations = problem
     store = ObservedCovariance(SENSOR, xbar[0], PRIOR_STD, first_estimates=False, iterations=iterations)
     store.add_landmarks(thetabar.shape[0])
@@ -32,7 +32,8 @@ def _store(problem, iterations):
         rows, y = observations[t - 1]
         precision = np.broadcast_to(np.linalg.inv(R), (rows.size, 2, 2)).copy()
         store.add_step(StepFactors(xbar[t], F[0], motion_residual(predicted[0], xbar[t]), Q, rows, y, precision))
-    store.close_segment(thetabar)
+    if close:
+        store.close_segment(thetabar)
     return store
 
 
@@ -88,10 +89,21 @@ def test_iterated_segment_reaches_the_nonlinear_optimum():
 
 
 def test_one_iteration_is_the_linearised_close():
+    """iterations 1 closes as the store always did: the segment linearised once and folded."""
     problem = _problem(seed=5, steps=30)
-    a, b = _store(problem, 1), _store(problem, 1)
-    assert np.array_equal(a.solve()[0], b.solve()[0])
-    assert EMConfig(segment_iterations=1).segment_iterations == 1
+    closed = _store(problem, 1)
+    folded = ObservedCovariance(SENSOR, problem[0][0], PRIOR_STD, first_estimates=False)
+    folded.add_landmarks(problem[1].shape[0])
+    folded.segments = _store_steps(problem)
+    folded.fold(folded.segment_system(problem[1]))
+    for a, b in zip(closed.solve(), folded.solve()):
+        assert np.array_equal(a, b)
+
+
+def _store_steps(problem):
+    """The buffered steps of :func:`_store`, before any close."""
+    store = _store(problem, 1, close=False)
+    return store.segments
 
 
 def test_iterations_need_the_covariance_form():
