@@ -1,4 +1,4 @@
-"""A segment's poses relinearised before they are integrated out (``em.segment_iterations``).
+"""A segment's poses and landmarks relinearised before its poses are integrated out (``em.segment_iterations``).
 
 Checked against scipy's nonlinear least squares of the same problem, built here from the
 motion and observation models (not the module's Jacobians): one segment over the whole run,
