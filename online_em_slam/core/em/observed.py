@@ -92,17 +92,23 @@ class ObservedInformationEM:
         self._send(segment, table, robot)
         if not self._solve_now(data.step):
             return None
+        pose_correction = self._solve_and_move(table, robot)
+        if pose_correction is not None and self.merger is not None and segment is not None and self.outbox is None:
+            pose_correction = pose_correction + self._merge_duplicates(table, robot, segment.seen)
+        return pose_correction
+
+    def _solve_and_move(self, table: LandmarkTable, robot: int) -> np.ndarray | None:
+        """The M-step: solve, the map into the table, ``robot``'s key moved to its solution;
+        that key's correction (3,), None if the solve failed (counted)."""
         solution = self.system.solve()
         if solution is None:
             self.failed_solves += 1
             return None
-        theta, key_corrections = solution
-        pose_correction = key_corrections[POSE_DIM * robot:POSE_DIM * (robot + 1)]
+        theta, keys = solution
         _take_solution(table, theta)
-        self.system.move_key(pose_correction, robot)
-        if self.merger is not None and segment is not None and self.outbox is None:
-            pose_correction = pose_correction + self._merge_duplicates(table, robot, segment.seen)
-        return pose_correction
+        correction = keys[POSE_DIM * robot:POSE_DIM * (robot + 1)].copy()
+        self.system.move_key(correction, robot)
+        return correction
 
     def _merge_duplicates(self, table: LandmarkTable, robot: int, recent: np.ndarray) -> np.ndarray:
         """Duplicates among the ``recent`` rows (the landmarks the segment saw) merged (merge.py),
@@ -123,14 +129,9 @@ class ObservedInformationEM:
             self.keep_landmarks(keep)
             recent = recent[recent != j] - (recent[recent != j] > j)
             self.merges += 1
-            solution = self.system.solve()
-            if solution is None:
-                self.failed_solves += 1
+            shift = self._solve_and_move(table, robot)
+            if shift is None:
                 break
-            theta, keys = solution
-            _take_solution(table, theta)
-            shift = keys[POSE_DIM * robot:POSE_DIM * (robot + 1)].copy()
-            self.system.move_key(shift, robot)
             correction += shift
         return correction
 
