@@ -113,6 +113,31 @@ def test_seconds_keeps_the_first_seconds_of_every_stream(dataset):
     assert run.drops["after_odometry"] == 0 and run.drops["bad_range"] == 3
 
 
+def test_start_keeps_a_later_window_of_every_stream(dataset):
+    """--start: the window [start, start + seconds) of each stream; what lies before it is cut
+    with the rest of the run, not dropped as 'before_odometry'."""
+    run = load_mrclam(dataset, 1, seconds=2.0, start=2.5)
+    assert run.start == 2.5
+    assert len(run.odometry_times) == 100 and run.odometry_times[[0, -1]] == pytest.approx([2.5, 4.48])
+    np.testing.assert_allclose(run.ground_truth_times[[0, -1]], [2.5, 4.48])
+    np.testing.assert_allclose(run.measurement_times, [3.0])
+    assert run.truncated == Counter(odometry=401, ground_truth=401, measurements=11)
+    assert sum(run.drops.values()) == 0
+    whole = load_mrclam(dataset, 1, start=2.5)                       # to the end of the run
+    assert whole.odometry_times[-1] == pytest.approx(10.0) and whole.drops["after_odometry"] == 1
+
+
+@pytest.mark.parametrize("start", [-1.0, math.nan, True])
+def test_start_must_be_a_non_negative_number(dataset, start):
+    with pytest.raises(ValueError, match="start must be"):
+        load_mrclam(dataset, 1, start=start)
+
+
+def test_start_after_the_run_is_a_clear_error(dataset):
+    with pytest.raises(ValueError, match="no odometry sample 20 s or more after the first"):
+        load_mrclam(dataset, 1, start=20.0)
+
+
 def test_printed_times_rebuilt_on_the_50hz_grid(tmp_path):
     """From 1000 s on, 5 significant digits round the 50 Hz times to 0.1 s (as in the real files)."""
     t = 990.0 + 0.02 * np.arange(1000)
@@ -365,3 +390,22 @@ def test_swapped_survey_labels_are_found_and_corrected(tmp_path):
     assert run.survey_relabelled == {6: 8, 8: 6}
     assert dict(zip(run.landmark_subjects.tolist(), map(tuple, run.landmark_xy))) == survey
     assert "subject 6 was listed as 8" in report_lines(run)[-1]
+
+
+@pytest.mark.skipif(not REAL_DATASET1.is_file(), reason=f"{REAL_DATASET1} not present")
+def test_real_dataset1_later_window_keeps_the_survey_correction(tmp_path, capsys):
+    """A window from 600 s: the survey's swap of subjects 11 and 17 is found from the whole run."""
+    out = tmp_path / "d1r1_w2"
+    code, text, err = _cli(["mrclam", str(out), "--data-dir", str(REAL_DATASET1), "--robot", "1",
+                            "--seconds", "60", "--start", "600", "--no-progress"], capsys)
+    assert code == 0, err
+    assert "60 s from 600 s after the first odometry sample kept" in text
+    assert "subject 11 was listed as 17" in text
+    first = _read(out, ["/ground_truth/pose"])[0]
+    assert first[1] == pytest.approx(STAMP_OFFSET + 600.0, abs=1e-3)          # seconds
+
+
+def test_start_is_for_one_robot(dataset, tmp_path, capsys):
+    code, _, err = _cli(["mrclam", str(tmp_path / "f"), "--data-dir", str(dataset), "--all-robots",
+                         "--start", "2", "--no-progress"], capsys)
+    assert code == 1 and "--start is for one robot" in err

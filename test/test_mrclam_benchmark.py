@@ -134,6 +134,18 @@ def test_plan_covers_every_method_and_noise(tmp_path):
     assert [i.key for i in items].index(f"{known}/online_em/seed1") < [i.key for i in items].index(learned.key)
 
 
+def test_plan_of_a_later_window(tmp_path):
+    """--start S0: the runs are named by their window and convert from it."""
+    (tmp_path / "MRCLAM_Dataset9.tar.xz").write_bytes(b"")
+    args = benchmark.build_parser().parse_args(["--data-dir", str(tmp_path), "--output", str(tmp_path / "o"),
+                                                "--datasets", "9", "--robots", "4", "--seeds", "0",
+                                                "--ids", "known", "--start", "600", "--methods", "online_em"])
+    items = benchmark.plan(args)
+    assert [item.key for item in items] == ["9_r4_600s_from600s_known/bag", "9_r4_600s_from600s_known/online_em/seed0"]
+    assert {item.start for item in items} == {600}
+    assert benchmark.record(items[0], "ok", {})["start"] == 600
+
+
 def test_failed_need_skips_dependents(tmp_path):
     source = benchmark.Item("r/bag", "convert", "r", 1, 1, 20, "known", str(tmp_path / "bag"),
                             source=str(tmp_path / "missing"))

@@ -27,6 +27,9 @@ def main(argv=None) -> int:
                         help="mrclam only: all five robots in one bag, topics under /robot1 .. /robot5")
     parser.add_argument("--seconds", type=float, default=None,
                         help="mrclam only: keep the first S seconds of every stream")
+    parser.add_argument("--start", type=float, default=0.0,
+                        help="mrclam, one robot: the window starts S seconds after the run's first odometry "
+                             "sample (with --seconds, a later window of the run; default 0)")
     parser.add_argument("--unknown-ids", action="store_true",
                         help="mrclam only: observation ids -1 (unknown) instead of the landmark numbers")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
@@ -38,8 +41,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.dataset == "mrclam":
         return run_fleet_cli(args) if args.all_robots else run_cli(args)
-    if args.robot is not None or args.seconds is not None or args.unknown_ids or args.all_robots:
-        print("online-em-slam-convert: error: --robot, --all-robots, --seconds and --unknown-ids are for "
+    if args.robot is not None or args.seconds is not None or args.start or args.unknown_ids or args.all_robots:
+        print("online-em-slam-convert: error: --robot, --all-robots, --seconds, --start and --unknown-ids are for "
               "mrclam only",
               file=sys.stderr)
         return 1

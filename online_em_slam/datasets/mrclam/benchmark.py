@@ -2,6 +2,7 @@
 
     online-em-slam-mrclam-benchmark --data-dir /work/shared/datasets/mrclam --output results/mrclam
         [--datasets 1 9] [--robots 1 2 3 4 5] [--seconds 600]   (0 = full length; several allowed)
+        [--start 0]   (the runs start S0 seconds after each robot's first odometry sample)
         [--seeds 0 1 2 3 4] [--ids known unknown] [--methods online_em online_em_complete ekf_slam
         fastslam2 marginal_slam batch] [--params config/mrclam.yaml ...] [--jobs 2] [--particles N]
         [--compare-with A/results.json]
@@ -64,7 +65,7 @@ class Item:
 
     key: str
     kind: str                                # convert | run | batch
-    run: str                                 # <dataset>_r<robot>_<seconds>_<ids>
+    run: str                                 # <dataset>_r<robot>_<seconds>[_from<start>s]_<ids>
     dataset: int
     robot: int
     seconds: int
@@ -81,12 +82,13 @@ class Item:
     particles: int | None = None             # --particles (filter.num_particles)
     after: tuple[str, ...] = ()              # keys of the items this one needs
     rescore: bool = False                    # --rescore: an existing run's map scored again
+    start: int = 0                           # --start: seconds after the first odometry sample
 
 
 # --------------------------------------------------------------------------- planning
 
-def run_name(dataset: int, robot: int, seconds: int, ids: str) -> str:
-    return f"{dataset}_r{robot}_{f'{seconds}s' if seconds else 'full'}_{ids}"
+def run_name(dataset: int, robot: int, seconds: int, ids: str, start: int = 0) -> str:
+    return f"{dataset}_r{robot}_{f'{seconds}s' if seconds else 'full'}{f'_from{start}s' if start else ''}_{ids}"
 
 
 def dataset_source(data_dir: Path, dataset: int) -> Path:
@@ -106,10 +108,10 @@ def plan(args) -> list[Item]:
         for robot in args.robots:
             for seconds in args.seconds:
                 for ids in args.ids:
-                    name = run_name(dataset, robot, seconds, ids)
+                    name = run_name(dataset, robot, seconds, ids, args.start)
                     convert = Item(f"{name}/bag", "convert", name, dataset, robot, seconds, ids,
                                    str(output / "bags" / name), source=str(source), particles=args.particles,
-                                   rescore=args.rescore)
+                                   rescore=args.rescore, start=args.start)
                     items.append(convert)
                     items.extend(run_items(args, convert, output / "runs" / name))
     return items
@@ -184,7 +186,7 @@ def convert_bag(item: Item) -> str:
     if partial.exists():                          # left by an interrupted conversion
         shutil.rmtree(partial)
     target.parent.mkdir(parents=True, exist_ok=True)
-    run = load_mrclam(item.source, item.robot, item.seconds or None)
+    run = load_mrclam(item.source, item.robot, item.seconds or None, item.start)
     write_mrclam_bag(run, partial, overwrite=True, unknown_ids=item.ids == "unknown", progress=False)
     partial.rename(target)
     return "ok"
@@ -272,7 +274,7 @@ def record(item: Item, status: str, metrics: dict, error: str = "") -> dict:
     """What results.json keeps of a work item."""
     lm, tr, tm = metrics.get("landmarks") or {}, metrics.get("trajectory") or {}, metrics.get("timing") or {}
     row = {"key": item.key, "kind": item.kind, "run": item.run, "dataset": item.dataset, "robot": item.robot,
-           "seconds": item.seconds, "ids": item.ids, "method": item.method, "noise": item.noise,
+           "seconds": item.seconds, "start": item.start, "ids": item.ids, "method": item.method, "noise": item.noise,
            "seed": item.seed, "status": status, "error": error or None, "dir": item.out or item.bag,
            "landmark_rmse": lm.get("rmse"), "landmark_shape": lm.get("shape_error"),
            "landmark_frame": lm.get("frame_error"), "matched": lm.get("n_matched"),
@@ -352,6 +354,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--datasets", type=int, nargs="+", default=[1, 9])
     parser.add_argument("--robots", type=int, nargs="+", default=[1, 2, 3, 4, 5], choices=range(1, 6))
     parser.add_argument("--seconds", type=int, nargs="+", default=[600], help="first S seconds (0 = full length)")
+    parser.add_argument("--start", type=int, default=0, metavar="S0",
+                        help="every run starts S0 seconds after the robot's first odometry sample (a later "
+                             "window: runs the defaults were not developed on; default 0)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     parser.add_argument("--ids", nargs="+", default=["known", "unknown"], choices=("known", "unknown"))
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
@@ -381,8 +386,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--data-dir and --output are required (unless --compare)")
     for name in ("datasets", "robots", "seconds", "seeds", "ids", "methods"):
         setattr(args, name, unique(getattr(args, name)))
-    if min(args.seconds) < 0 or args.jobs < 1:
-        print("online-em-slam-mrclam-benchmark: error: --seconds must be >= 0 and --jobs >= 1", file=sys.stderr)
+    if min(args.seconds) < 0 or args.start < 0 or args.jobs < 1:
+        print("online-em-slam-mrclam-benchmark: error: --seconds and --start must be >= 0 and --jobs >= 1",
+              file=sys.stderr)
         return 2
     args.params = [str(Path(p).resolve()) for p in args.params]
     args.output = str(Path(args.output).resolve())
@@ -397,7 +403,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     Path(args.output).mkdir(parents=True, exist_ok=True)
     records = run_all(items, args.jobs)
-    meta = {key: getattr(args, key) for key in ("data_dir", "datasets", "robots", "seconds", "seeds", "ids",
+    meta = {key: getattr(args, key) for key in ("data_dir", "datasets", "robots", "seconds", "start", "seeds", "ids",
                                                   "methods", "params", "jobs", "particles")}
     meta.update(match_gate_m=MATCH_GATE, wall_time_s=time.perf_counter() - started, cpu_count=os.cpu_count(),
                 date=time.strftime("%Y-%m-%d %H:%M"))

@@ -2,7 +2,7 @@
 
 Command line (through the KTH converter's entry point)::
 
-    online-em-slam-convert mrclam OUTPUT --data-dir DIR_OR_TARXZ --robot K [--seconds S]
+    online-em-slam-convert mrclam OUTPUT --data-dir DIR_OR_TARXZ --robot K [--seconds S] [--start S0]
                            [--unknown-ids] [--storage mcap|sqlite3] [--overwrite] [--no-progress]
 
 Two layers, as in :mod:`online_em_slam.datasets.kth.convert` (whose message helpers are reused):
@@ -246,7 +246,10 @@ def report_lines(run: MrclamRun) -> list[str]:
     """What the loader left out or changed, for the command line."""
     lines = ["dropped measurements: " + ", ".join(f"{r} {run.drops[r]}" for r in DROP_REASONS)
              + f" (kept {run.n_measurements})"]
-    if run.seconds is not None:
+    if run.start:
+        lines.append(f"{'the' if run.seconds is None else f'{run.seconds:g}'} s from {run.start:g} s after "
+                     "the first odometry sample kept; rows cut: " + ", ".join(f"{k} {v}" for k, v in run.truncated.items()))
+    elif run.seconds is not None:
         lines.append(f"first {run.seconds:g} s kept; rows cut: "
                      + ", ".join(f"{k} {v}" for k, v in run.truncated.items()))
     elif any(run.truncated.values()):
@@ -295,7 +298,7 @@ def run_cli(args) -> int:
         return fail("mrclam needs --robot K (1-5) or --all-robots")
 
     def convert():
-        run = load_mrclam(args.data_dir, args.robot, args.seconds)
+        run = load_mrclam(args.data_dir, args.robot, args.seconds, args.start)
         counts = write_mrclam_bag(run, args.output, args.storage, args.overwrite, args.unknown_ids,
                                   progress=not args.no_progress)
         return counts, report_lines(run)

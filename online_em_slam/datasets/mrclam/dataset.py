@@ -31,7 +31,8 @@ Messy input handled here:
   swapped (Dataset 1: subjects 11 and 17); ``MrclamRun.survey_relabelled``
   (:mod:`online_em_slam.datasets.mrclam.survey`).
 * ``seconds``: only the first S seconds from the first odometry sample are kept of
-  every stream; the rows cut are counted in ``MrclamRun.truncated`` (ground-truth rows
+  every stream (``start``: the S seconds from that many seconds after it, a later window
+  of the same run); the rows cut are counted in ``MrclamRun.truncated`` (ground-truth rows
   outside the odometry's time span too), not as drops.
 
 The robots' reads of each other's barcodes (``other_robot`` above) are read on their own by
@@ -90,6 +91,7 @@ class MrclamRun:
     truncated: Counter = field(default_factory=Counter)
     retimed: Counter = field(default_factory=Counter)
     seconds: float | None = None
+    start: float = 0.0                      # seconds after the first odometry sample where the run starts
     survey_relabelled: dict = field(default_factory=dict)   # {subject: survey entry it was listed under}
 
     @property
@@ -215,14 +217,24 @@ def _time_window(t0: float, seconds: float | None) -> float:
     return math.inf if seconds is None else t0 + seconds - 1e-9 * (1.0 + abs(t0 + seconds))
 
 
+def _window_start(t0: float, start: float) -> float:
+    """First kept time of a window ``start`` seconds after t0 (-inf for the run's own start, so
+    that earlier measurements count as ``before_odometry``); a hair below t0 + start."""
+    return -math.inf if start == 0 else t0 + start - 1e-9 * (1.0 + abs(t0 + start))
+
+
 # --------------------------------------------------------------------------- streams
 
-def _odometry(rows: np.ndarray, name: str, seconds: float | None, run: dict) -> None:
+def _odometry(rows: np.ndarray, name: str, seconds: float | None, run: dict, start: float = 0.0) -> None:
     if len(rows) == 0:
         raise ValueError(f"{name}: no odometry samples")
     _require_finite(name, rows)
     times, changed = regular_times(name, rows[:, 0])
-    keep = times < _time_window(times[0], seconds)
+    t0 = times[0] + start
+    keep = (times >= _window_start(times[0], start)) & (times < _time_window(t0, seconds))
+    if not keep.any():
+        raise ValueError(f"{name}: no odometry sample {start:g} s or more after the first ({times[0]:g} s); "
+                         f"the run lasts {times[-1] - times[0]:g} s")
     run["retimed"]["odometry"] = int(np.count_nonzero(changed & keep))
     run["truncated"]["odometry"] = int(np.count_nonzero(~keep))
     run.update(odometry_times=times[keep], odometry_v=rows[keep, 1], odometry_w=rows[keep, 2])
@@ -248,7 +260,8 @@ def _barcode_subjects(barcodes: np.ndarray, table: np.ndarray) -> np.ndarray:
     return np.where(known[idx] == barcodes, subjects[idx], 0)
 
 
-def _measurements(rows: np.ndarray, name: str, table: np.ndarray, seconds: float | None, run: dict) -> None:
+def _measurements(rows: np.ndarray, name: str, table: np.ndarray, seconds: float | None, run: dict,
+                  start: float = 0.0) -> None:
     """Sort by time, cut to the window, drop by reason (DROP_REASONS order), keep the rest."""
     if not np.isfinite(rows[:, 0]).all():
         raise ValueError(f"{name}: non-finite time in data row {int(np.argmax(~np.isfinite(rows[:, 0]))) + 1}")
@@ -256,6 +269,8 @@ def _measurements(rows: np.ndarray, name: str, table: np.ndarray, seconds: float
     t, odo = rows[:, 0], run["odometry_times"]
     subjects = _barcode_subjects(rows[:, 1], table)
     cut = t >= _time_window(odo[0], seconds)
+    if start > 0:               # before a later window: cut with the rest of the run, not a drop
+        cut |= t < odo[0]
     run["truncated"]["measurements"] = int(np.count_nonzero(cut))
     with np.errstate(invalid="ignore"):
         checks = {"before_odometry": t < odo[0], "after_odometry": t > odo[-1], "unknown_barcode": subjects == 0,
@@ -271,23 +286,18 @@ def _measurements(rows: np.ndarray, name: str, table: np.ndarray, seconds: float
                measurement_bearing=rows[keep, 3])
 
 
-def _check_arguments(robot, seconds) -> None:
+def _check_arguments(robot, seconds, start: float = 0.0) -> None:
     if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)) or int(robot) not in ROBOTS:
         raise ValueError(f"robot must be one of 1-5, got {robot!r}")
     if seconds is not None and not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds > 0):
         raise ValueError(f"seconds must be a positive number, got {seconds!r}")
+    if isinstance(start, bool) or not (isinstance(start, (int, float)) and math.isfinite(start) and start >= 0):
+        raise ValueError(f"start must be a number of seconds >= 0, got {start!r}")
 
 
-def load_mrclam(data_dir, robot: int, seconds: float | None = None) -> MrclamRun:
-    """Load robot ``robot`` (1-5) of the MRCLAM dataset at ``data_dir`` (directory or archive).
-
-    ``seconds``: keep only the first S seconds from the first odometry sample.  Raises
-    FileNotFoundError (missing file) or ValueError (malformed file, bad argument) with
-    a one-line message naming the file.
-    """
-    _check_arguments(robot, seconds)
-    files = robot_files(int(robot))
-    source, texts = read_texts(data_dir, [BARCODES, LANDMARKS, *files.values()])
+def _read_run(source: str, texts: dict[str, str], robot: int, seconds: float | None, start: float) -> MrclamRun:
+    """One robot's window of the files read (survey as listed)."""
+    files = robot_files(robot)
     barcodes = parse_table(BARCODES, texts[BARCODES], 2)
     _require_finite(BARCODES, barcodes)
     if len(barcodes) == 0:
@@ -296,14 +306,27 @@ def load_mrclam(data_dir, robot: int, seconds: float | None = None) -> MrclamRun
     landmarks = parse_table(LANDMARKS, texts[LANDMARKS], 5)
     _require_finite(LANDMARKS, landmarks)
     run: dict = {"retimed": Counter(), "truncated": Counter()}
-    _odometry(parse_table(files["odometry"], texts[files["odometry"]], 3), files["odometry"], seconds, run)
+    _odometry(parse_table(files["odometry"], texts[files["odometry"]], 3), files["odometry"], seconds, run, start)
     _ground_truth(parse_table(files["ground_truth"], texts[files["ground_truth"]], 4), files["ground_truth"], run)
     _measurements(parse_table(files["measurement"], texts[files["measurement"]], 4), files["measurement"], table,
-                  seconds, run)
-    loaded = MrclamRun(robot=int(robot), source=source,
-                       landmark_subjects=_require_integers(LANDMARKS, landmarks[:, 0]),
-                       landmark_xy=landmarks[:, 1:3].copy(), seconds=seconds, **run)
-    moves = survey_relabelling(loaded)
+                  seconds, run, start)
+    return MrclamRun(robot=robot, source=source, landmark_subjects=_require_integers(LANDMARKS, landmarks[:, 0]),
+                     landmark_xy=landmarks[:, 1:3].copy(), seconds=seconds, start=float(start), **run)
+
+
+def load_mrclam(data_dir, robot: int, seconds: float | None = None, start: float = 0.0) -> MrclamRun:
+    """Load robot ``robot`` (1-5) of the MRCLAM dataset at ``data_dir`` (directory or archive).
+
+    ``seconds``: keep only the first S seconds from the first odometry sample, or from
+    ``start`` seconds after it.  The survey's labels are checked against the run from its
+    own start (a later window may see too few of a landmark).  Raises FileNotFoundError
+    (missing file) or ValueError (malformed file, bad argument) with a one-line message
+    naming the file.
+    """
+    _check_arguments(robot, seconds, start)
+    source, texts = read_texts(data_dir, [BARCODES, LANDMARKS, *robot_files(int(robot)).values()])
+    loaded = _read_run(source, texts, int(robot), seconds, start)
+    moves = survey_relabelling(loaded if start == 0 else _read_run(source, texts, int(robot), None, 0.0))
     if not moves:
         return loaded
     return replace(loaded, landmark_subjects=relabelled_survey(loaded.landmark_subjects, moves),

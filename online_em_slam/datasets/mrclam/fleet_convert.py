@@ -138,6 +138,8 @@ def run_fleet_cli(args) -> int:
     """``online-em-slam-convert mrclam OUT --all-robots ...``; 0 or 1 (one error line)."""
     if args.robot is not None:
         return fail("--all-robots and --robot exclude each other")
+    if args.start:
+        return fail("--start is for one robot (--robot K); a fleet's bag starts at the dataset's start")
 
     def convert():
         runs = load_fleet(args.data_dir, args.seconds)
