@@ -247,8 +247,9 @@ def report_lines(run: MrclamRun) -> list[str]:
     lines = ["dropped measurements: " + ", ".join(f"{r} {run.drops[r]}" for r in DROP_REASONS)
              + f" (kept {run.n_measurements})"]
     if run.start:
-        lines.append(f"{'the' if run.seconds is None else f'{run.seconds:g}'} s from {run.start:g} s after "
-                     "the first odometry sample kept; rows cut: " + ", ".join(f"{k} {v}" for k, v in run.truncated.items()))
+        kept = "the run" if run.seconds is None else f"{run.seconds:g} s"
+        lines.append(f"{kept} from {run.start:g} s after the first odometry sample kept; rows cut: "
+                     + ", ".join(f"{k} {v}" for k, v in run.truncated.items()))
     elif run.seconds is not None:
         lines.append(f"first {run.seconds:g} s kept; rows cut: "
                      + ", ".join(f"{k} {v}" for k, v in run.truncated.items()))

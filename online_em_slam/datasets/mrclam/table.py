@@ -215,7 +215,8 @@ def results_markdown(records: list[dict], meta: dict) -> str:
              "", LEGEND, ""]
     for seconds, ids in sorted({(r["seconds"], r["ids"]) for r in records}):
         runs = sorted({k[:4] for k in table if k[:2] == (seconds, ids)})
-        title = (f"{seconds} s" if seconds else "full length") + (f" from {meta['start']} s" if meta.get("start") else "")
+        title = f"{seconds} s" if seconds else "full length"
+        title += f" from {meta['start']} s" if meta.get("start") else ""
         lines += [f"## {title}, {ids} ids", ""] + main_table(table, runs, methods) + [""]
         lines += ["Landmark RMSE in the ground-truth frame / trajectory RMSE against /ground_truth/position (m):", ""]
         lines += frame_table(table, runs, methods) + [""]
