@@ -45,6 +45,11 @@ class NoiseLearningConfig:
         learned quantity is in use, the estimator restarts at its initial pose
         and filters the warm-up's inputs (at most ``max_replay_inputs``) again
         with the learned noise as the starting values, once.
+    replay_on_calibration: with motion_gains learned, a gain that comes into
+        use before that (the calibration of the motion input) has the inputs so
+        far filtered again from the start with it, once: a heading error made
+        at a wrong turning gain grows with every turn, and the noise learned
+        from a filter that ran at it is learned from that error.
     motion_window: filter steps over which the pose is predicted open loop for
         the motion scale's statistic (one step's motion noise is small next to
         the pose's uncertainty; L steps' is not).
@@ -84,6 +89,9 @@ class NoiseLearningConfig:
                                           "have passed): a short run's estimate can be several times off.")
     replay_warmup: bool = param(True, doc="Once every learned quantity is in use, filter the warm-up's inputs "
                                 "again from the start with the learned noise (once; the pose may jump then).")
+    replay_on_calibration: bool = param(True, doc="With motion_gains learned: once a motion gain comes into "
+                                        "use before the warm-up replay, filter the inputs so far again from the "
+                                        "start with it (once; the pose may jump then).")
     max_replay_inputs: int = param(100000, 0, 10 ** 7, doc="Inputs kept for the warm-up replay (per robot "
                                    "in fleet mode); a longer warm-up is not replayed.")
     motion_window: int = param(10, 1, 1000, doc="Filter steps over which the pose is predicted open loop for "

@@ -6,7 +6,10 @@ keeps the estimator's inputs from its start; once every learned quantity is in
 use, a new estimator starts at the initial pose, its noise learner from the
 learned values (held while the warm-up is filtered again), and is fed the kept
 inputs; once it has every input the estimator received, it becomes the estimator.
-Once.
+Once.  Before that, once, the same for the calibration of the motion input
+(``replay_on_calibration``): when a learned motion gain comes into use, the
+inputs so far are filtered again with the gains known and the values in use
+then, and the kept inputs go on growing for the warm-up replay.
 
 Offline the new estimator is fed everything at once, inside the input that made the
 replay due.  A live node cannot stop that long (a fleet's replay on MRCLAM is most
@@ -28,6 +31,13 @@ def learned_start(learner) -> tuple:
     return learner.noise_config(), learner.scale_estimate, learner.gains_known(), learner.scales_estimate.copy()
 
 
+def calibrated_start(learner) -> tuple:
+    """What a noise learner restarts from in the calibration replay: the values in use, the
+    motion gains known by then.  The rest is not learned yet: its estimates are the first
+    pass's, made at the wrong gains."""
+    return learner.noise_config(), learner.scale_in_use, learner.gains_known(), learner.scales_in_use.copy()
+
+
 class WarmupReplay:
     """The inputs since the start (``inputs``, None once there is nothing to replay) and the replay.
 
@@ -36,11 +46,14 @@ class WarmupReplay:
     ``replaying``: the new estimator while it catches up (None before and after).
     """
 
-    def __init__(self, keep: bool, max_inputs: int, start) -> None:
+    def __init__(self, keep: bool, max_inputs: int, start, calibrate: bool = False) -> None:
         self.inputs: list | None = [] if keep else None
         self.max_inputs = max_inputs
         self.start = start              # where the estimator restarts (see _restarted)
         self.replayed = False
+        self.calibrate = calibrate      # replay once when a motion gain comes into use first
+        self.calibrated = False
+        self._calibrating = False       # the replay under way is the calibration's
         self.replaying = None
         self._fed = 0                   # kept inputs fed to ``replaying``
         self._warmup_length = 0         # the inputs up to the one that made the replay due
@@ -61,8 +74,14 @@ class WarmupReplay:
         self.replaying = None
 
     def due(self, learner) -> bool:
-        """Inputs are kept, no replay runs, and every quantity the noise learner learns is in use."""
-        return self.inputs is not None and self.replaying is None and learner.all_in_use
+        """Inputs are kept, no replay runs, and every quantity the noise learner learns is in use,
+        or (the calibration replay, once) a learned motion gain is."""
+        if self.inputs is None or self.replaying is not None:
+            return False
+        everything = learner.all_in_use
+        self._calibrating = (not everything and self.calibrate and not self.calibrated
+                             and learner.calibration_in_use)
+        return everything or self._calibrating
 
     def replay(self, estimator, in_slices: bool = False) -> None:
         """Start the replay for ``estimator``: all of it now, or (``in_slices``) in :meth:`advance`."""
@@ -102,7 +121,7 @@ class WarmupReplay:
     def _restarted(self, estimator):
         """A new estimator of ``estimator``'s configuration at the start, its learner started
         from and held at the learned values, keeping no inputs of its own."""
-        learned = learned_start(estimator._noise)
+        learned = (calibrated_start if self._calibrating else learned_start)(estimator._noise)
         fresh = copy.copy(estimator)        # the configuration shared; reset rebinds every state
         fresh.drops = Counter()
         fresh.reset(*self.start)
@@ -130,4 +149,8 @@ class WarmupReplay:
         estimator.__dict__.clear()
         estimator.__dict__.update(replayed.__dict__)
         estimator.drops = estimator._input.drops = drops   # the motion input counts into it too
-        estimator._warmup.replayed = True
+        if self._calibrating:           # the warm-up replay is still to come: the kept inputs go on
+            self.replaying, self._calibrating, self.calibrated = None, False, True
+            estimator._warmup = self
+            return
+        estimator._warmup.replayed, estimator._warmup.calibrated = True, self.calibrated

@@ -166,8 +166,13 @@ class NoiseLearner:
         observation = not (self.learn & OBSERVATION_QUANTITIES) or self.observation_noise_warm
         motion = ("motion_scale" not in self.learn or self.shape or self.motion_scale_warm) and (
             not self.shape or self._shape_warm)
-        gains = self.gains is None or bool(self._gain_warm.any())       # the warm-up is re-filtered with them
+        gains = self.gains is None or self.calibration_in_use       # the warm-up is re-filtered with them
         return bool(self.learn) and observation and motion and gains
+
+    @property
+    def calibration_in_use(self) -> bool:
+        """A learned motion gain has replaced its configured value."""
+        return self.gains is not None and bool(self._gain_warm.any())
 
     @property
     def observation_noise_warm(self) -> bool:
