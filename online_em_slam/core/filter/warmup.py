@@ -78,13 +78,12 @@ class WarmupReplay:
         or (the calibration replay, once) a learned motion gain is."""
         if self.inputs is None or self.replaying is not None:
             return False
-        everything = learner.all_in_use
-        self._calibrating = (not everything and self.calibrate and not self.calibrated
-                             and learner.calibration_in_use)
-        return everything or self._calibrating
+        return learner.all_in_use or (self.calibrate and not self.calibrated and learner.calibration_in_use)
 
     def replay(self, estimator, in_slices: bool = False) -> None:
-        """Start the replay for ``estimator``: all of it now, or (``in_slices``) in :meth:`advance`."""
+        """Start the replay for ``estimator``: all of it now, or (``in_slices``) in :meth:`advance`.
+        The calibration's while some learned value is not in use yet, else the warm-up's."""
+        self._calibrating = self.calibrate and not all(learner.all_in_use for learner in self._learners(estimator))
         self.replaying = self._restarted(estimator)
         self._fed, self._warmup_length = 0, len(self.inputs)
         if not in_slices:
