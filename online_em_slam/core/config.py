@@ -27,6 +27,7 @@ MOTION_INPUTS = {"bicycle": "steering", "acfr": "steering", "unicycle": "yaw_rat
 MOTION_MODELS = tuple(MOTION_INPUTS)
 NOISE_MODELS = ("gaussian", "mixture", "student_t")
 SMOOTHERS = ("forward", "paris", "ancestry")
+SERIAL_LIKELIHOODS = ("inflated", "ar1")
 EM_ALGORITHMS = ("online", "block", "block_averaged")
 M_STEPS = ("complete", "observed")
 MAP_FORMS = ("information", "covariance")
@@ -206,6 +207,12 @@ class FilterConfig:
                                            "A robot standing still reads the same errors again.")
     minimum_travel_heading: float = param(0.0, 0.0, 2.0 * math.pi, doc="... or turned this much (rad) since "
                                           "the last observation update; see minimum_travel_distance.")
+    serial_likelihood: str = param("inflated", choices=SERIAL_LIKELIHOODS, doc="The particles' likelihood "
+                                   "of serially correlated errors (noise.serial_correlation c): inflated (each "
+                                   "observation independent under R (1 + c) / (1 - c)) or ar1 (exact for AR(1) "
+                                   "errors: a landmark seen at the step before by the particle's ancestor weighs "
+                                   "by the quasi-difference nu_t - c nu_(t-1) under R - C R C). The M-step "
+                                   "takes R (1 + c) / (1 - c) either way.")
 
     def validate(self, prefix: str = "filter") -> None:
         check_length(f"{prefix}.initial_pose_std", self.initial_pose_std, 3, " (x, y, yaw)")

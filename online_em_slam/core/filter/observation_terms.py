@@ -8,7 +8,8 @@ import numpy as np
 
 from ..config import ObservationNoiseConfig
 from ..models.observation import (component_precision_weight, innovation, inv_det_2x2, landmark_jacobian,
-                                  noise_loglik, predict_observation)
+                                  noise_covariance, noise_loglik, predict_observation)
+from ..types import Observations
 
 
 @dataclass
@@ -55,3 +56,8 @@ def observation_terms(y: np.ndarray, R: np.ndarray, theta_bar: np.ndarray, senso
     precision = R_inv[None] * component_precision_weight(noise, resp)[..., None, None]
     return ObservationTerms(y, R, nu, H, precision, log_likelihood)
 
+
+def scan_noise(noise: ObservationNoiseConfig, obs: Observations, idx: np.ndarray) -> np.ndarray:
+    """R (P, 2, 2) of the observations ``idx`` of a scan under ``noise``, or the stds they carry."""
+    return noise_covariance(noise, obs.ranges[idx], None if obs.range_std is None else obs.range_std[idx],
+                            None if obs.bearing_std is None else obs.bearing_std[idx])

@@ -28,8 +28,9 @@ from .input_contract import MotionInput, usable_observations
 from ..mapping import mapfile, persistence
 from ..mapping.landmarks import LandmarkTable
 from ..em.noise.learner import NoiseLearner
-from ..models.observation import information_noise, noise_covariance, sensor_poses
-from .observation_terms import ObservationTerms, observation_terms
+from ..models.observation import information_noise, sensor_poses
+from .serial_errors import LastInnovations
+from .observation_terms import ObservationTerms, observation_terms, scan_noise
 from .prediction import PendingMotion
 from .warmup import WarmupReplay
 from .particles import effective_sample_size, localised, normalize_log_weights, sample_gaussians, systematic_resample
@@ -73,6 +74,7 @@ class OnlineEMSlam:
         n = cfg.filter.num_particles
         pose = np.asarray(initial_pose if initial_pose is not None else self._initial_pose, dtype=float)
         self._initial_pose = pose.copy()
+        self._last_innovations = LastInnovations()
         self._particles = np.tile(pose, (n, 1))
         std = np.asarray(cfg.filter.initial_pose_std, dtype=float)
         if np.any(std > 0):
@@ -275,7 +277,7 @@ class OnlineEMSlam:
         sensor = sensor_poses(particles, self.config.sensor)
         prior_weights, _ = normalize_log_weights(log_prior)
         rows, obs_idx = self._associate_scan(obs, sensor, prior_weights, report)
-        terms = self._observation_terms(obs, obs_idx, rows, sensor)
+        terms = self._observation_terms(obs, obs_idx, rows, sensor, ancestors)
         log_w = log_prior + terms.log_likelihood
         weights = self._normalise(log_w)
         data = self._step_data(particles, weights, prior_weights, ancestors, trans_cov, rows, terms, sensor)
@@ -308,24 +310,24 @@ class OnlineEMSlam:
         obs_idx, rows = self._associate(obs, sensor, prior_weights, report)
         return rows, obs_idx
 
-    def _observation_terms(self, obs, obs_idx, rows, sensor) -> ObservationTerms:
+    def _observation_terms(self, obs, obs_idx, rows, sensor, ancestors) -> ObservationTerms:
         """Innovations, Jacobians, likelihood and responsibilities under theta_{t-1}; counts the observations.
-
-        The likelihood weighs with the landmarks seen often enough; with
-        ``inflate_with_map_uncertainty`` its innovation covariance carries H Sigma_k H^T.
-        """
+        The likelihood weighs with the landmarks seen often enough (``inflate_with_map_uncertainty``: its
+        covariance widened by H Sigma_k H^T; ``filter.serial_likelihood`` ar1: under AR(1) errors)."""
         if not rows.size:
             return ObservationTerms.empty(sensor.shape[0])
         cfg = self.config
         y = np.stack([obs.ranges[obs_idx], obs.bearings[obs_idx]], axis=-1)            # (P, 2)
-        noise = information_noise(self._noise.noise_config())      # serially correlated errors inform less
-        R = noise_covariance(noise, obs.ranges[obs_idx],
-                             None if obs.range_std is None else obs.range_std[obs_idx],
-                             None if obs.bearing_std is None else obs.bearing_std[obs_idx])
+        in_use = self._noise.noise_config()
+        noise = information_noise(in_use)      # serially correlated errors inform less
+        R = scan_noise(noise, obs, obs_idx)
         weighting = self._map.n_obs[rows] >= cfg.association.min_observations_for_weighting
         inflate = cfg.em.inflate_with_map_uncertainty and weighting.any()
         terms = observation_terms(y, R, self._map.theta[rows], sensor, noise, weighting,
                                   self._m_step.covariances(rows) if inflate else None)
+        if cfg.filter.serial_likelihood == "ar1":       # the weights under AR(1) errors (serial_errors.py)
+            self._last_innovations.weigh(terms, self._step, self._map.ids[rows], scan_noise(in_use, obs, obs_idx),
+                                         ancestors, in_use, weighting)
         self._map.n_obs[rows] += 1
         return terms
 
@@ -495,3 +497,4 @@ class OnlineEMSlam:
             self.__dict__.clear()
             self.__dict__.update(snapshot)
             raise
+
