@@ -378,9 +378,7 @@ class OnlineEMSlam:
             rows = candidate_rows(self._map.theta, mean_sensor(), reach)
             if not rows.size:
                 return rows, np.zeros((0, 2)), np.zeros((unknown.size, 0, 2, 2))
-            R = noise_covariance(noise, obs.ranges[unknown],
-                                 None if obs.range_std is None else obs.range_std[unknown],
-                                 None if obs.bearing_std is None else obs.bearing_std[unknown])
+            R = scan_noise(noise, obs, unknown)
             return (rows,) + predicted_measurements(self._map.theta[rows], sensor, w, self._m_step.covariances(rows),
                                                     self.config.association, R)
 
