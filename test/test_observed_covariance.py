@@ -39,7 +39,10 @@ def _close(a, b, tol=1e-8):
 def test_the_covariance_form_has_the_information_forms_solution(problem, segment_length):
     info, cov = _both(problem, segment_length)
     (theta_i, dx_i), (theta_c, dx_c) = info.solve(), cov.solve()
-    assert _close(theta_c, theta_i) and _close(dx_c, dx_i)
+    # The two forms reach one solution through different factorisations: at 51 folds and an
+    # information matrix conditioned near 1e5 they differed by 1.1e-8 in dx (4e-9 in theta) on
+    # one machine's BLAS (2026-11-29), by less elsewhere.
+    assert _close(theta_c, theta_i) and _close(dx_c, dx_i, 5e-8)
     full = np.linalg.inv(info.info)
     blocks = np.array([full[3 + 2 * k:5 + 2 * k, 3 + 2 * k:5 + 2 * k] for k in range(5)])
     assert np.allclose(cov.landmark_covariances(), blocks, rtol=1e-7, atol=1e-12)
