@@ -53,18 +53,24 @@ def test_a_landmark_without_a_view_at_the_step_before_has_the_marginal():
         assert np.allclose(got, [marginal.logpdf(nu[i, 0]) for i in range(3)])
 
 
+def _map_after(scenario, config, likelihood: str, serial: tuple[float, float]) -> np.ndarray:
+    config = replace(config, filter=replace(config.filter, serial_likelihood=likelihood),
+                     noise=replace(config.noise, serial_correlation=serial))
+    slam = OnlineEMSlam(config, initial_pose=scenario.initial_pose, stamp=0.0)
+    for step in scenario.steps:
+        feed(slam, step)
+    return slam.landmarks().positions
+
+
 def test_uncorrelated_errors_leave_the_weights_as_they_were():
-    """With c = 0 (as every configuration that learns none) ar1 is the inflated likelihood: bit for bit."""
+    """With c = 0 (as every configuration that learns none) ar1 is the inflated likelihood: bit for
+    bit; with c > 0 the setting reaches the filter (another map, still finite)."""
     scenario = simulate(ScenarioConfig(seed=0, n_steps=120))
     config = slam_config_for(scenario, num_particles=30)
-    runs = []
-    for likelihood in ("inflated", "ar1"):
-        slam = OnlineEMSlam(replace(config, filter=replace(config.filter, serial_likelihood=likelihood)),
-                            initial_pose=scenario.initial_pose, stamp=0.0)
-        for step in scenario.steps:
-            feed(slam, step)
-        runs.append(slam.landmarks().positions)
+    runs = [_map_after(scenario, config, likelihood, (0.0, 0.0)) for likelihood in ("inflated", "ar1")]
     assert np.array_equal(runs[0], runs[1])
+    correlated = [_map_after(scenario, config, likelihood, tuple(C)) for likelihood in ("inflated", "ar1")]
+    assert np.isfinite(correlated[1]).all() and not np.array_equal(correlated[0], correlated[1])
 
 
 def test_correlated_errors_change_only_the_weights():

@@ -495,4 +495,3 @@ class OnlineEMSlam:
             self.__dict__.clear()
             self.__dict__.update(snapshot)
             raise
-
