@@ -66,7 +66,7 @@ class BaselineFilter:
         u = self._input.control(stamp, control)
         if u is None or not self._advance(stamp):
             return False
-        self._input.held_control = u
+        self._input.hold(float(stamp), u)
         return True
 
     def add_odometry(self, stamp: float, odom_pose) -> bool:
@@ -126,16 +126,14 @@ class BaselineFilter:
         if held.last_stamp is None:
             held.last_stamp = stamp
             return True
-        dt = stamp - held.last_stamp
         motion = self.config.motion
-        if dt > motion.max_prediction_interval:
-            self.drops["large_time_step_clipped"] += 1
-            dt = motion.max_prediction_interval
-        if dt > 0 and held.held_control is not None and not motion.uses_odometry:
+        for control, dt in held.held_segments(stamp):       # none for the odometry model: nothing held
+            if dt > motion.max_prediction_interval:
+                self.drops["large_time_step_clipped"] += 1
+                dt = motion.max_prediction_interval
             n, h = prediction_substeps(dt, motion.max_step)
             for _ in range(n):
-                self._predict(held.held_control, h)
-        held.last_stamp = stamp
+                self._predict(control, h)
         return True
 
 

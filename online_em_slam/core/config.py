@@ -70,6 +70,9 @@ class MotionConfig:
                                           "multiplied by this instead of rotation_gain (a differential drive's "
                                           "controllers can deliver a turn in place and one while driving in "
                                           "different shares; not the odometry model). 0: rotation_gain.")
+    control_delay: float = param(0.0, 0.0, 5.0, doc="Dead time of the drive (s): a control (speed, steering "
+                                 "or yaw rate command) moves the vehicle from this long after its stamp on "
+                                 "(not the odometry model, which measures the motion itself).")
     sigma_speed: float = param(0.5, *_STD, doc="Speed noise std (m/s) over noise_reference_period.")
     sigma_steering: float = param(math.pi / 60, *_STD, doc="Steering angle / yaw rate noise std (rad, rad/s) "
                                   "over noise_reference_period.")

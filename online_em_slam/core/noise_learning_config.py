@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from .config_fields import check_fields, check_length, check_range, param, param_info
 
 LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "dof", "range_growth", "serial_correlation",
-                   "motion_scale", "motion_gains", "motion_gain_in_place", "motion_shape")
+                   "motion_scale", "motion_gains", "motion_gain_in_place", "motion_delay", "motion_shape")
 
 
 @dataclass
@@ -75,7 +75,9 @@ class NoiseLearningConfig:
                                    "calibration of the motion input: motion.translation_gain, "
                                    "rotation_gain), motion_gain_in_place (with motion_gains: a third gain, "
                                    "motion.rotation_in_place_gain, for turns in place; not the default of "
-                                   "any data set, docs/RESULTS.md). To learn nothing set enabled false.")
+                                   "any data set, docs/RESULTS.md), motion_delay (with motion_gains: the "
+                                   "drive's dead time motion.control_delay, learned with the gains). To learn "
+                                   "nothing set enabled false.")
     step_size_exponent: float = param(0.7, 0.5, 1.0, lo_open=True, doc="Step size gamma_n = n^-exponent of the "
                                       "noise statistics.")
     motion_step_size_exponent: float = param(1.0, 0.5, 1.0, lo_open=True, doc="Step size exponent of the motion "
@@ -126,15 +128,21 @@ class NoiseLearningConfig:
                                          "once their standard errors are below this, or once the estimate is "
                                          "three standard errors from the gain in use (and warmup_steps have "
                                          "passed).")
+    motion_delay_limits: tuple[float, float] = param((0.0, 1.0), 0.0, 5.0, doc="Floor and ceiling (s) of the "
+                                                     "learned dead time of the drive (motion.control_delay), "
+                                                     "floor <= ceiling; it is used by the rule of "
+                                                     "motion_gain_tolerance, read in seconds.")
     _LIMITS = ("sigma_range_limits", "sigma_bearing_limits", "range_growth_limits", "mixture_weight_limits",
                "mixture_scale_limits", "dof_limits", "motion_scale_limits",
-               "motion_gain_limits")
+               "motion_gain_limits", "motion_delay_limits")
 
     def validate(self, prefix: str = "noise_learning") -> None:
         if isinstance(self.learn, str):
             raise ValueError(f"{prefix}.learn = {self.learn!r} must be a list of names of {', '.join(LEARNABLE_NOISE)}")
         if "motion_gain_in_place" in self.learn and "motion_gains" not in self.learn:
             raise ValueError(f"{prefix}.learn: motion_gain_in_place is a third motion gain, learned with motion_gains")
+        if "motion_delay" in self.learn and "motion_gains" not in self.learn:
+            raise ValueError(f"{prefix}.learn: motion_delay is learned with the motion gains (motion_gains)")
         for name in self._LIMITS:
             check_length(f"{prefix}.{name}", getattr(self, name), 2, " (floor, ceiling)")
         check_fields(self, prefix)

@@ -116,10 +116,8 @@ class _MotionBook:
             held.last_stamp = self.anchor = stamp
             self.start = stamp if self.start is None else self.start
             return
-        dt = stamp - held.last_stamp
-        if dt > 0 and held.held_control is not None and not self.motion.uses_odometry:
-            self._predict(held.held_control, dt)
-        held.last_stamp = stamp
+        for control, dt in held.held_segments(stamp):       # none for the odometry model: nothing held
+            self._predict(control, dt)
         if stamp - self.anchor > self.motion.max_prediction_interval:
             self.cov = self.cov + step_jitter(self.motion)     # a filter step without observations
             self.anchor = stamp
@@ -133,7 +131,7 @@ class _MotionBook:
             if u is None:
                 return
             self._advance_to(stamp)
-            self.input.held_control = u
+            self.input.hold(stamp, u)
         else:
             usable, increment, dt = self.input.odometry_motion(stamp, payload)
             if not usable:

@@ -39,6 +39,8 @@ class MotionInput:
     def reset(self, stamp: float | None = None) -> None:
         self.last_stamp: float | None = None if stamp is None else float(stamp)
         self.held_control: np.ndarray | None = None
+        # Controls still in the drive's dead time: (time they take effect, control), in order.
+        self.scheduled: tuple[tuple[float, np.ndarray], ...] = ()
         self.last_odometry: np.ndarray | None = None
         self._last_odometry_stamp: float | None = None
         self._implausible_odometry = 0
@@ -66,6 +68,30 @@ class MotionInput:
             self.drops["implausible_control"] += 1
             return None
         return u[:2].copy() if self.accept_stamp(stamp) else None
+
+    def hold(self, stamp: float, u: np.ndarray, delay: float | None = None) -> None:
+        """``u`` takes over from the held control ``delay`` s (default ``motion.control_delay``, the
+        drive's dead time) after ``stamp``, at once without one; :meth:`held_segments` switches to
+        it when the time comes."""
+        delay = self.motion.control_delay if delay is None else delay
+        if delay > 0.0:
+            self.scheduled = self.scheduled + ((float(stamp) + delay, u),)
+        else:
+            self.held_control = u
+
+    def held_segments(self, stamp: float) -> list[tuple[np.ndarray, float]]:
+        """The held controls from the last stamp up to ``stamp`` as (control, dt) segments, each
+        scheduled control taking over at its time; the last stamp becomes ``stamp``."""
+        segments, t = [], self.last_stamp
+        while self.scheduled and self.scheduled[0][0] <= stamp:
+            (when, u), self.scheduled = self.scheduled[0], self.scheduled[1:]
+            if when > t and self.held_control is not None:
+                segments.append((self.held_control, when - t))
+            t, self.held_control = max(t, when), u
+        if stamp > t and self.held_control is not None:
+            segments.append((self.held_control, stamp - t))
+        self.last_stamp = stamp
+        return segments
 
     def _plausible_control(self, u: np.ndarray) -> bool:
         if abs(u[0]) > self.motion.max_speed:

@@ -16,6 +16,10 @@ from ..models import motion as motion_models
 from ..models.angles import wrap_angle
 
 
+# The shift of the command stream (s) whose effect gives d pose / d control_delay.
+DELAY_STEP = 1e-4
+
+
 class PendingMotion:
     """Queued segments (``controls``, ``dts``) and the track since the last filter step:
     ``pose`` (3,), ``cov`` (3, 3), ``jacobian`` (3, 3) and ``sensitivity`` (3, G), d pose / d
@@ -81,8 +85,22 @@ class PendingMotion:
         pose = self.pose[None]
         D = np.empty((3, len(gains)))
         for j, name in enumerate(gains):
-            step = 1e-6 * getattr(config, name)
-            nudged = replace(config, **{name: getattr(config, name) + step})
-            D[:, j] = (motion_models.integrate_segments(nudged, pose, np.zeros((1, 3, 3)), controls, dts)[0][0]
+            if name == motion_models.DELAY:
+                nudged, (controls_j, dts_j), step = config, delayed_segments(controls, dts, DELAY_STEP), DELAY_STEP
+            else:
+                step, controls_j, dts_j = 1e-6 * getattr(config, name), controls, dts
+                nudged = replace(config, **{name: getattr(config, name) + step})
+            D[:, j] = (motion_models.integrate_segments(nudged, pose, np.zeros((1, 3, 3)), controls_j, dts_j)[0][0]
                        - moved) / step
         return jacobian @ self.sensitivity + D
+
+
+def delayed_segments(controls: np.ndarray, dts: np.ndarray, delta: float) -> tuple[np.ndarray, np.ndarray]:
+    """The segments (controls (K, 2), dts (K,)) as they would run ``delta`` s later: the first control
+    (the one in effect when they start) runs ``delta`` longer at the start, and as much is cut from
+    the end, so they span the same time."""
+    lengths = np.array(dts, dtype=float)
+    lengths[0] += delta                     # one segment, not two: the integration's own steps
+    lengths = np.diff(np.concatenate([[0.0], np.minimum(np.cumsum(lengths), dts.sum())]))
+    keep = lengths > 0.0
+    return controls[keep], lengths[keep]

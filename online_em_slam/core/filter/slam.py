@@ -201,10 +201,8 @@ class OnlineEMSlam:
         if held.last_stamp is None:
             held.last_stamp = self._anchor_time = stamp
             return
-        dt = stamp - held.last_stamp
-        if dt > 0 and held.held_control is not None and not self.config.motion.uses_odometry:
-            self._predict(held.held_control, dt)
-        held.last_stamp = stamp
+        for control, dt in held.held_segments(stamp):       # none for the odometry model: nothing held
+            self._predict(control, dt)
         if stamp - self._anchor_time > self.config.motion.max_prediction_interval:
             # Keep the Gaussian transition local: a filter step without observations.
             self._filter_step(None)
@@ -216,7 +214,7 @@ class OnlineEMSlam:
         if u is None:
             return False
         self._advance_to(float(stamp))
-        self._input.held_control = u
+        self._input.hold(float(stamp), u, self._noise.motion_config().control_delay)   # the dead time in use
         return True
 
     def add_odometry(self, stamp: float, odom_pose) -> bool:

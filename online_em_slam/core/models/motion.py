@@ -214,6 +214,9 @@ SEGMENT_PARTS = {name: (globals()[f"_{name}_segment"], globals()[f"_{name}_moves
 # The motion model's gains (calibrated), in the order the noise learner estimates them; the
 # third only when it learns motion_gain_in_place.
 GAIN_NAMES = ("translation_gain", "rotation_gain", "rotation_in_place_gain")
+# The drive's dead time (motion.control_delay), learned with the gains (noise_learning motion_delay):
+# a shift of the command stream moves the poses linearly to first order, as a gain does.
+DELAY = "control_delay"
 # A commanded speed below this (m/s) is a turn in place (rotation_in_place_gain).
 IN_PLACE_SPEED = 1e-3
 

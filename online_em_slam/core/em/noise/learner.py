@@ -44,7 +44,7 @@ from ...models.observation import information_noise, noise_covariance
 from ..segment_factors import motion_residual
 from ..step import FilterStepData
 from .averages import StochasticAverage
-from .motion_gains import MotionGains, gain_statistic, known, move_towards
+from .motion_gains import DELAY, MotionGains, gain_statistic, known, move_towards
 from .motion_noise import (MotionWindow, absolute_error, group_scales, prediction_statistic, ratio_error,
                            shape_statistic)
 from .observation import UsedObservations, mixture_m_step, observation_statistics, student_t_dof
@@ -95,7 +95,10 @@ class NoiseLearner:
         self.scale_in_use = 1.0
         self._motion_warm = False
         # The calibration of the motion input (motion_gains.py): the gains in use.
-        self.gain_names = GAIN_NAMES if "motion_gain_in_place" in learn else GAIN_NAMES[:2]
+        self.gain_names = ((GAIN_NAMES if "motion_gain_in_place" in learn else GAIN_NAMES[:2])
+                           + ((DELAY,) if "motion_delay" in learn else ()))
+        self._gain_limits = np.array([self.settings.motion_delay_limits if name == DELAY
+                                      else self.settings.motion_gain_limits for name in self.gain_names]).T
         self.gains = (MotionGains(self.settings.motion_step_size_exponent, self.settings.motion_window,
                                   len(self.gain_names)) if "motion_gains" in learn else None)
         self.gains_in_use = np.array([gain(config.motion, name) for name in self.gain_names])
@@ -142,7 +145,7 @@ class NoiseLearner:
             self.scales_in_use = np.clip(np.asarray(motion_scales, dtype=float), low, high)
             self.scales_estimate = self.scales_in_use.copy()
         if self.gains is not None and motion_gains is not None:
-            self.gains_in_use = np.clip(np.asarray(motion_gains, dtype=float), *self.settings.motion_gain_limits)
+            self.gains_in_use = np.clip(np.asarray(motion_gains, dtype=float), *self._gain_limits)
             self.gains_estimate = self.gains_in_use.copy()
 
     def saved_values(self) -> dict[str, np.ndarray] | None:
@@ -329,7 +332,8 @@ class NoiseLearner:
             self.sensitivities[-1] = data.motion_gain_sensitivity
         if self.shape:
             self.parts[:-1] = self.parts[1:]
-            self.parts[-1] = data.motion_cov_parts
+            # No motion since the last step (a first scan before any control acts): no parts yet, zero.
+            self.parts[-1] = data.motion_cov_parts if data.motion_cov_parts.shape[0] else 0.0
         if not self.window.full or used is None:
             return
         if self.gains is not None:
@@ -397,13 +401,14 @@ class NoiseLearner:
         estimate, self.gain_errors = result
         # A gain no window excited (NaN: never turned in place) keeps the one in use.
         self.gains_estimate = np.where(np.isnan(estimate), self.gains_in_use,
-                                       np.clip(estimate, *self.settings.motion_gain_limits))
+                                       np.clip(estimate, *self._gain_limits))
         if self.gains.count >= self.settings.warmup_steps:
             self._gain_warm |= known(self.gains_estimate, self.gains_in_use, self.gain_errors,
                                      self.settings.motion_gain_tolerance)
         if not self.holding:
             target = np.where(self._gain_warm, self.gains_estimate, self.gains_in_use)
-            self.gains_in_use = move_towards(self.gains_in_use, target, _SCALE_RATIO)
+            self.gains_in_use = move_towards(self.gains_in_use, target, _SCALE_RATIO,
+                                             np.array([name == DELAY for name in self.gain_names]))
 
     # ------------------------------------------------------------ M-step
     def _observation_m_step(self, stats: np.ndarray) -> ObservationNoiseConfig:

@@ -29,9 +29,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...models.motion import DELAY
 from .averages import StochasticAverage
 from .motion_noise import MotionSteps, block_diagonal, compound
 
+# Largest change of a learned dead time in use per filter step (s): an additive rate, as it starts at 0.
+MAX_DELAY_RATE = 0.005
 MAX_CONDITION = 1e6                   # N (unit diagonal) of the informed gains solved only below this
 # A learned gain replaces the one in use once they differ by this many standard errors.
 REJECTION = 3.0
@@ -113,7 +116,13 @@ def known(estimate: np.ndarray, in_use: np.ndarray, errors: np.ndarray, toleranc
     return (errors <= tolerance) | (np.abs(estimate - in_use) > REJECTION * errors)
 
 
-def move_towards(in_use: np.ndarray, target: np.ndarray, ratio: tuple[float, float]) -> np.ndarray:
-    """Each gain moved towards its target by at most the factor ``ratio`` allows."""
-    return in_use * np.clip(target / in_use, *ratio)
+def move_towards(in_use: np.ndarray, target: np.ndarray, ratio: tuple[float, float],
+                 additive: np.ndarray | None = None) -> np.ndarray:
+    """Each gain moved towards its target by at most the factor ``ratio`` allows; those marked
+    ``additive`` (G,) (a dead time, which may start at 0) by at most MAX_DELAY_RATE."""
+    if additive is None or not additive.any():
+        return in_use * np.clip(target / in_use, *ratio)
+    moved = in_use + np.clip(target - in_use, -MAX_DELAY_RATE, MAX_DELAY_RATE)
+    scaled = in_use * np.clip(np.divide(target, in_use, out=np.ones_like(target), where=~additive), *ratio)
+    return np.where(additive, moved, scaled)
 
