@@ -451,6 +451,7 @@ class NoiseLearner:
                 "mixture_weights": list(noise.mixture_weights), "mixture_scales": list(noise.mixture_scales),
                 "motion_scale": self.scale_estimate, "motion_scale_error": _finite_or_none(self.motion_scale_error()),
                 "motion_scales": self.scales_estimate.tolist() if self.shape else None,
+                "motion_gain_names": list(self.gain_names),   # motion.* parameters: gains, the dead time
                 "motion_gains": self.gains_estimate.tolist(), "motion_gains_in_use": self._gain_warm.tolist(),
                 "motion_gains_error": [_finite_or_none(float(e)) for e in self.gain_errors]}
 
