@@ -96,15 +96,16 @@ def test_the_filters_sensitivity_to_the_delay_is_the_finite_difference_of_a_shif
     np.testing.assert_allclose(slam._noise.sensitivities[-1][:, -1], expected, rtol=1e-3, atol=3e-4)
 
 
-def test_the_learner_finds_a_dead_time_of_0_3_s_on_the_simulation():
+@pytest.mark.parametrize("learn", [("motion_gains", "motion_delay"), ("motion_delay",)])
+def test_the_learner_finds_a_dead_time_of_0_3_s_on_the_simulation(learn):
     """The vehicle moves 0.3 s after each command's stamp: the learned delay comes into use
-    within 0.05 s of 0.3.  The commands are nearly what the vehicle executes, as a robot's
-    commands are (MRCLAM): the seed scenario's noisy controls (sigma_speed 0.5 m/s) make the
-    regressor, a change of the control, noisy, and the estimate falls towards 0 (0.22 s), as
-    any errors-in-variables regression does."""
+    within 0.05 s of 0.3, learned with the gains or alone.  The commands are nearly what the
+    vehicle executes, as a robot's commands are (MRCLAM): the seed scenario's noisy controls
+    (sigma_speed 0.5 m/s) make the regressor, a change of the control, noisy, and the estimate
+    falls towards 0 (0.22 s), as any errors-in-variables regression does."""
     scenario = simulate(ScenarioConfig(seed=3, n_steps=1000, sigma_speed=0.05, sigma_steering=math.pi / 600))
     config = replace_section(slam_config_for(scenario, num_particles=30, seed=0), noise_learning=NoiseLearningConfig(
-        enabled=True, learn=("motion_gains", "motion_delay"), replay_warmup=False))
+        enabled=True, learn=learn, replay_warmup=False))
     slam = OnlineEMSlam(config, initial_pose=scenario.initial_pose)
     events = sorted([(step.control_stamp - 0.3, 0, step) for step in scenario.steps]
                     + [(step.stamp, 1, step) for step in scenario.steps], key=lambda e: (e[0], e[1]))

@@ -75,8 +75,8 @@ class NoiseLearningConfig:
                                    "calibration of the motion input: motion.translation_gain, "
                                    "rotation_gain), motion_gain_in_place (with motion_gains: a third gain, "
                                    "motion.rotation_in_place_gain, for turns in place; not the default of "
-                                   "any data set, docs/RESULTS.md), motion_delay (with motion_gains: the "
-                                   "drive's dead time motion.control_delay, learned with the gains). To learn "
+                                   "any data set, docs/RESULTS.md), motion_delay (the drive's dead time "
+                                   "motion.control_delay, by the gains' statistic, with them or alone). To learn "
                                    "nothing set enabled false.")
     step_size_exponent: float = param(0.7, 0.5, 1.0, lo_open=True, doc="Step size gamma_n = n^-exponent of the "
                                       "noise statistics.")
@@ -141,8 +141,6 @@ class NoiseLearningConfig:
             raise ValueError(f"{prefix}.learn = {self.learn!r} must be a list of names of {', '.join(LEARNABLE_NOISE)}")
         if "motion_gain_in_place" in self.learn and "motion_gains" not in self.learn:
             raise ValueError(f"{prefix}.learn: motion_gain_in_place is a third motion gain, learned with motion_gains")
-        if "motion_delay" in self.learn and "motion_gains" not in self.learn:
-            raise ValueError(f"{prefix}.learn: motion_delay is learned with the motion gains (motion_gains)")
         for name in self._LIMITS:
             check_length(f"{prefix}.{name}", getattr(self, name), 2, " (floor, ceiling)")
         check_fields(self, prefix)

@@ -51,7 +51,9 @@ from .observation import UsedObservations, mixture_m_step, observation_statistic
 from .range_fit import RangeBins, range_noise_fit
 from .serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation, whitened
 
-MOTION_QUANTITIES = frozenset({"motion_scale", "motion_gains", "motion_shape"})
+MOTION_QUANTITIES = frozenset({"motion_scale", "motion_gains", "motion_delay", "motion_shape"})
+# The calibration of the motion input (motion_gains.py): gains and the drive's dead time.
+CALIBRATION = frozenset({"motion_gains", "motion_delay"})
 OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture", "dof", "range_growth",
                                     "serial_correlation"})
 # Largest change of the motion scale in use per filter step, in log: a factor 9 takes 110 steps.
@@ -95,12 +97,14 @@ class NoiseLearner:
         self.scale_in_use = 1.0
         self._motion_warm = False
         # The calibration of the motion input (motion_gains.py): the gains in use.
-        self.gain_names = ((GAIN_NAMES if "motion_gain_in_place" in learn else GAIN_NAMES[:2])
-                           + ((DELAY,) if "motion_delay" in learn else ()))
+        self.gain_names = GAIN_NAMES[:2]                  # none learned: the configured ones
+        if learn & CALIBRATION:
+            gains = GAIN_NAMES if "motion_gain_in_place" in learn else GAIN_NAMES[:2]
+            self.gain_names = (gains if "motion_gains" in learn else ()) + ((DELAY,) if "motion_delay" in learn else ())
         self._gain_limits = np.array([self.settings.motion_delay_limits if name == DELAY
                                       else self.settings.motion_gain_limits for name in self.gain_names]).T
         self.gains = (MotionGains(self.settings.motion_step_size_exponent, self.settings.motion_window,
-                                  len(self.gain_names)) if "motion_gains" in learn else None)
+                                  len(self.gain_names)) if learn & CALIBRATION else None)
         self.gains_in_use = np.array([gain(config.motion, name) for name in self.gain_names])
         self.sensitivities = np.zeros((self.settings.motion_window + 1, 3, len(self.gain_names)))
         self.gains_estimate, self.gain_errors = self.gains_in_use.copy(), np.full(len(self.gain_names), math.inf)
