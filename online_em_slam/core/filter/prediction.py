@@ -85,14 +85,19 @@ class PendingMotion:
         pose = self.pose[None]
         D = np.empty((3, len(gains)))
         for j, name in enumerate(gains):
-            if name == motion_models.DELAY:
-                nudged, (controls_j, dts_j), step = config, delayed_segments(controls, dts, DELAY_STEP), DELAY_STEP
-            else:
-                step, controls_j, dts_j = 1e-6 * getattr(config, name), controls, dts
-                nudged = replace(config, **{name: getattr(config, name) + step})
+            nudged, controls_j, dts_j, step = _nudged(config, name, controls, dts)
             D[:, j] = (motion_models.integrate_segments(nudged, pose, np.zeros((1, 3, 3)), controls_j, dts_j)[0][0]
                        - moved) / step
         return jacobian @ self.sensitivity + D
+
+
+def _nudged(config: MotionConfig, name: str, controls: np.ndarray, dts: np.ndarray) -> tuple:
+    """(config, controls, dts, step): the motion with the gain ``name`` a small step further; the
+    dead time's step shifts the segments instead (:func:`delayed_segments`)."""
+    if name == motion_models.DELAY:
+        return (config, *delayed_segments(controls, dts, DELAY_STEP), DELAY_STEP)
+    step = 1e-6 * getattr(config, name)
+    return replace(config, **{name: getattr(config, name) + step}), controls, dts, step
 
 
 def delayed_segments(controls: np.ndarray, dts: np.ndarray, delta: float) -> tuple[np.ndarray, np.ndarray]:
