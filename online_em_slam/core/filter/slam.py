@@ -208,7 +208,8 @@ class OnlineEMSlam:
             self._filter_step(None)
 
     def add_control(self, stamp: float, control) -> bool:
-        """Control u = (speed, steering angle or yaw rate) valid from ``stamp`` on."""
+        """Control u = (speed, steering angle or yaw rate), held from ``stamp`` plus the drive's dead time
+        in use (``motion.control_delay``, or the learned one) on."""
         self._warmup.record("add_control", stamp, control)
         u = self._input.control(stamp, control)
         if u is None:
