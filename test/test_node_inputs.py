@@ -103,7 +103,7 @@ def test_late_observations_after_a_stretch_without_observations_are_used(ros, ga
 
 
 def test_best_effort_odometry_publisher_is_received(ros):
-    node = ros.start(motion_source="odom")
+    node = ros.start(motion_source="odom", **{"input_qos.reliability": "best_effort"})
     best_effort = ros.tester.create_publisher(Odometry, "/odom", QoSProfile(
         depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
     assert ros.spin_until(lambda: best_effort.get_subscription_count() >= 1, 3.0)

@@ -223,7 +223,7 @@ def test_under_overload_the_node_sheds_observations_never_motion_and_bounds_its_
         return slow(self, *args, **kwargs)
     monkeypatch.setattr(OnlineEMSlam, "add_observations", add_observations)
     node = ros.start(motion_source="odom", publish_particles=False, input_delay=0.5, input_max_wait=0.2,
-                     **{"filter.num_particles": 20})
+                     **{"filter.num_particles": 20, "input_qos.reliability": "best_effort"})
     moves = []
     monkeypatch.setattr(node.slam, "add_odometry", lambda stamp, pose, _f=node.slam.add_odometry:
                         moves.append(stamp) or _f(stamp, pose))
