@@ -37,6 +37,11 @@ from online_em_slam.experiments.simulation import ScenarioConfig, simulate  # no
 NAME = "online_em_slam"
 T0 = 1000.0            # stamps start here (a zero stamp means "unstamped" for controls)
 TIMEOUT_SCALE = float(os.environ.get("LIVE_TIMEOUT_SCALE", "3"))   # Harness.spin_until
+# Parameters of every live test's node. Lossless inputs (the testers publish reliably): a loaded
+# test machine must not make a node shed observation updates where a test counts them or compares
+# maps; the shedding tests ask for best_effort.
+LIVE_DEFAULTS = {"map_publish_period": 0.1, "diagnostics_period": 0.2, "transform_publish_period": 0.05,
+                 "warn_throttle_period": 0.0, "input_delay": 0.0, "input_qos.reliability": "reliable"}
 
 
 def finite_pose(msg: PoseWithCovarianceStamped) -> bool:
@@ -59,11 +64,7 @@ class Harness:
 
     # -- setup
     def start(self, **params) -> OnlineEmSlamNode:
-        # Lossless inputs (the tester publishes reliably): a loaded test machine must not make the
-        # node shed observation updates where a test counts them; the shedding tests ask for best_effort.
-        base = {"map_publish_period": 0.1, "diagnostics_period": 0.2, "transform_publish_period": 0.05,
-                "warn_throttle_period": 0.0, "input_delay": 0.0, "input_qos.reliability": "reliable"}
-        base.update(params)
+        base = {**LIVE_DEFAULTS, **params}
         overrides = [Parameter(k, value=v) for k, v in base.items()]
         self.node = OnlineEmSlamNode(context=self.context, parameter_overrides=overrides)
         self.executor.add_node(self.node)

@@ -16,7 +16,7 @@ from online_em_slam.experiments.simulation import ScenarioConfig, fleet_scenario
 from online_em_slam.ros import conversions as conv  # noqa: E402
 from online_em_slam.ros.node import OnlineEmSlamNode  # noqa: E402
 from online_em_slam.ros.segment_link import segments_qos  # noqa: E402
-from test_node import T0  # noqa: E402
+from test_node import LIVE_DEFAULTS, T0  # noqa: E402
 from test_node_fleet import _model  # noqa: E402
 
 ROBOTS = ("robot1", "robot2")
@@ -24,8 +24,7 @@ ROBOTS = ("robot1", "robot2")
 
 def _nodes(ros, scenarios):
     poses = [float(v) for s in scenarios for v in s.initial_pose]
-    params = {"map_publish_period": 0.1, "diagnostics_period": 0.2, "warn_throttle_period": 0.0,
-              "input_delay": 1.0, "motion_source": "control", "control_angular": "steering",
+    params = {**LIVE_DEFAULTS, "input_delay": 1.0, "motion_source": "control", "control_angular": "steering",
               "filter.num_particles": 20, "robots": list(ROBOTS), "initial_poses": poses, **_model(scenarios[0].config)}
     nodes = {}
     for r in ROBOTS:
@@ -85,11 +84,12 @@ def test_a_reactivated_node_folds_nothing_twice_and_bad_messages_are_dropped(ros
         assert ros.spin_until(exchanged, 20.0), (node.segment_link.counts, other.segment_link.counts)
         assert node.segment_link.counts["lost"] == 0 and other.segment_link.counts["lost"] == 0
         a, b = node.slam.landmarks(), other.slam.landmarks()
-        assert np.isfinite(a.positions).all()
         # The 120 scans close every segment, and both maps are then the same (0.0000 m apart). Under
-        # load a node may skip a scan; it then ends with a segment still open, whose landmarks are
-        # its own view until the segment closes: in CI once a landmark only one node held, once
-        # a common one 0.53 m apart. So most landmarks, not every one, must agree exactly.
+        # load a node may end with a segment still open, whose landmarks are its own view until it
+        # closes (in CI once a landmark only one node held, once a common one 0.53 m apart; with two
+        # CPU hogs beside the test, a landmark only one held, also with lossless inputs). So most
+        # landmarks, not every one, must agree exactly.
+        assert np.isfinite(a.positions).all()
         only = set(a.ids.tolist()) ^ set(b.ids.tolist())
         assert len(only) <= 3, only
         where = {i: k for k, i in enumerate(b.ids.tolist())}
