@@ -10,7 +10,7 @@ import pytest
 
 from online_em_slam.datasets.mrclam import benchmark
 from online_em_slam.datasets.mrclam.paired import paired_markdown, pairs_by_method
-from online_em_slam.datasets.mrclam.table import best_cell, cells, results_markdown
+from online_em_slam.datasets.mrclam.table import best_cell, cells, paired_with_better_baseline, results_markdown
 
 N_LANDMARKS = 15
 SUBJECTS = np.arange(6, 6 + N_LANDMARKS)
@@ -179,6 +179,29 @@ def test_better_noise_setting_and_summary():
     assert "0.110 ± 0.010 · 15/15 · 0" in text and "0.200 (L) · 15/15 · 1" in text
     assert "FastSLAM 2.0: 1 of 1 runs" in text and "ratio (mean over runs): 2.75 over 1 runs" in text
     assert "online_em 15/15 ✓, 0 spurious ✓; fastslam2 15/15 ✓, 1 spurious ✗" in text
+    assert "paired by seed (beyond two standard errors): ahead on 1, level on 0, behind on 0 runs" in text
+
+
+def test_paired_with_the_better_baseline_seed_by_seed():
+    """Online EM's seed k against the baseline on seed k's learned noise; a deterministic baseline's one
+    run on the params' noise against every seed; two standard errors decide ahead, level or behind."""
+    def rec(robot, method, noise, seed, shape):
+        return {"kind": "run", "status": "ok", "seconds": 600, "ids": "known", "dataset": 9, "robot": robot,
+                "method": method, "noise": noise, "seed": seed, "landmark_shape": shape, "landmark_rmse": shape,
+                "trajectory_rmse": 0.1, "matched": 15, "n_true": 15, "spurious": 0, "item_wall_s": 1.0,
+                "key": f"{robot}/{method}/{noise}/{seed}", "error": None}
+    ours = {1: [0.10, 0.11, 0.12], 2: [0.10, 0.11, 0.12], 3: [0.10, 0.11, 0.12]}
+    theirs = {1: [0.10, 0.12, 0.11], 2: [0.12, 0.13, 0.14], 3: [0.08, 0.09, 0.10]}     # level, behind us, ahead
+    records = [rec(r, "online_em", "params", k, v) for r, values in ours.items() for k, v in enumerate(values)]
+    records += [rec(r, "ekf_slam", "learned", k, v) for r, values in theirs.items() for k, v in enumerate(values)]
+    records += [rec(r, "ekf_slam", "params", 0, 0.5) for r in ours]                   # the worse setting
+    table = cells(records)
+    runs = sorted({k[:4] for k in table})
+    line = paired_with_better_baseline(records, table, runs)
+    assert line.endswith("ahead on 1, level on 1, behind on 1 runs"), line
+    records = [r for r in records if r["noise"] == "params"] + [rec(r, "fastslam2", "params", 0, 0.11) for r in ours]
+    table = cells(records)            # EKF-SLAM's deterministic run, no learned setting: one value for every seed
+    assert paired_with_better_baseline(records, table, runs).endswith("ahead on 0, level on 3, behind on 0 runs")
 
 
 def test_paired_differences_pair_run_method_noise_and_seed():
