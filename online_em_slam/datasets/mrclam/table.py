@@ -193,8 +193,9 @@ def paired_with_better_baseline(records: list[dict], table: dict, runs: list[tup
     on online EM's seed k's noise, so the two are paired; on the params' noise, a deterministic
     baseline's one run is each seed's.  Ahead / behind: the mean difference beyond two standard
     errors of it, level within; with one pair, its sign."""
-    shape = {(r["seconds"], r["ids"], r["dataset"], r["robot"], r["method"], r["noise"], r["seed"]): r["landmark_shape"]
-             for r in records if r["kind"] != "convert" and r["status"] in DONE and r.get("landmark_shape") is not None}
+    shape = {(r["seconds"], r["ids"], r["dataset"], r["robot"], r["method"], r["noise"], r["seed"]):
+             r["landmark_shape"] for r in records
+             if r["kind"] != "convert" and r["status"] in DONE and r.get("landmark_shape") is not None}
     counts = {"ahead": 0, "level": 0, "behind": 0}
     for run in runs:
         better = better_baseline(table, run)
