@@ -23,19 +23,17 @@ from pathlib import Path
 import numpy as np
 
 from online_em_slam.offline import cli, runner
+from online_em_slam.offline.evaluation import fitted_onto
 
 
 def rigid_fit_errors(ids: np.ndarray, positions: np.ndarray, truth: dict[int, np.ndarray]) -> dict[int, float]:
-    """Each surveyed landmark's error (m) after the best rigid 2-D fit of the map onto the survey."""
+    """Each surveyed landmark's error (m) after the best rigid 2-D fit of the map onto the survey
+    (the evaluation's fit, offline/evaluation.py)."""
     keep = [k for k, i in enumerate(ids) if int(i) in truth]
     if len(keep) < 3:
         return {}
-    A = positions[keep]
-    B = np.array([truth[int(ids[k])] for k in keep])
-    a, b = A.mean(axis=0), B.mean(axis=0)
-    U, _, Vt = np.linalg.svd((A - a).T @ (B - b))
-    D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])              # a rotation, not a reflection
-    residual = (A - a) @ (U @ D @ Vt) + b - B
+    surveyed = np.array([truth[int(ids[k])] for k in keep])
+    residual = fitted_onto(positions[keep], positions[keep], surveyed) - surveyed
     return {int(ids[k]): float(np.hypot(*residual[j])) for j, k in enumerate(keep)}
 
 

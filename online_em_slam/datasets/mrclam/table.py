@@ -168,10 +168,10 @@ def comparisons(table: dict, runs: list[tuple]) -> list[str]:
     wins, compared, ratios = 0, 0, []
     for run in runs:
         em = _shape(table, run, "online_em")
-        others = [v for v in (_shape(table, run, m) for m in ("ekf_slam", "fastslam2")) if math.isfinite(v)]
-        if math.isfinite(em) and others:
+        better = better_baseline(table, run)
+        if math.isfinite(em) and better is not None:
             compared += 1
-            wins += em <= min(others)
+            wins += em <= better[1]["landmark_shape"]
         batch = _shape(table, run, "batch")
         if math.isfinite(em) and math.isfinite(batch) and batch > 0:
             ratios.append(em / batch)
@@ -182,7 +182,7 @@ def comparisons(table: dict, runs: list[tuple]) -> list[str]:
 
 def better_baseline(table: dict, run: tuple) -> tuple[str, dict] | None:
     """(method, cell) of the better of EKF-SLAM and FastSLAM 2.0 on ``run``, each at its better noise
-    setting, by shape RMSE (the comparison of :func:`comparisons`)."""
+    setting, by shape RMSE: what :func:`comparisons` and :func:`paired_with_better_baseline` compare with."""
     found = [(m, c) for m in ("ekf_slam", "fastslam2") if (c := best_cell(table, run, m)) is not None
              and math.isfinite(c["landmark_shape"])]
     return min(found, key=lambda mc: mc[1]["landmark_shape"]) if found else None
@@ -196,14 +196,17 @@ def paired_with_better_baseline(records: list[dict], table: dict, runs: list[tup
     shape = {(r["seconds"], r["ids"], r["dataset"], r["robot"], r["method"], r["noise"], r["seed"]):
              r["landmark_shape"] for r in records
              if r["kind"] != "convert" and r["status"] in DONE and r.get("landmark_shape") is not None}
+    by_cell: dict[tuple, dict] = {}
+    for key, value in shape.items():
+        by_cell.setdefault(key[:-1], {})[key[-1]] = value
     counts = {"ahead": 0, "level": 0, "behind": 0}
     for run in runs:
         better = better_baseline(table, run)
         if better is None:
             continue
         method, cell = better
-        ours = {k[-1]: v for k, v in shape.items() if k[:-1] == run + ("online_em", "params")}
-        theirs = {k[-1]: v for k, v in shape.items() if k[:-1] == run + (method, cell["noise"])}
+        ours = by_cell.get(run + ("online_em", "params"), {})
+        theirs = by_cell.get(run + (method, cell["noise"]), {})
         single = next(iter(theirs.values())) if len(theirs) == 1 and cell["noise"] == "params" else None
         d = [v - theirs.get(seed, single) for seed, v in ours.items() if theirs.get(seed, single) is not None]
         mean, se = mean_se(d)
