@@ -227,3 +227,41 @@ def test_lever_arm_recovers_noise_free_landmarks():
     result = batch_from_inputs(events, config, truth[0])
     np.testing.assert_allclose(result.poses[:, :2], truth[::SUB, :2], atol=1e-6)
     np.testing.assert_allclose(result.landmarks, sim.landmarks[result.landmark_ids], atol=1e-6)
+
+
+# --------------------------------------------------------------------------- the estimator's model
+
+def test_minimum_travel_leaves_out_the_scans_the_feeder_would():
+    """With filter.minimum_travel_distance, a scan gets a pose variable only once the robot has
+    moved that far since the last used one (the first is used): kept scans found from the true
+    (noise-free) poses, and the truth recovered at them through the merged motion."""
+    sim, config, truth, stamps, odom, events = _odometry_run()
+    config = replace(config, filter=replace(config.filter, minimum_travel_distance=2.0)).validate()
+    scans = np.arange(SUB, len(stamps), SUB)
+    kept = [scans[0]]
+    for i in scans[1:]:
+        if np.hypot(*(truth[i, :2] - truth[kept[-1], :2])) >= 2.0:
+            kept.append(i)
+    assert 3 < len(kept) < len(scans) // 2
+    result = batch_from_inputs(events, config, truth[0])
+    np.testing.assert_allclose(result.stamps[1:], stamps[kept], atol=1e-12)
+    assert result.skipped["minimum_travel"] == len(scans) - len(kept)
+    np.testing.assert_allclose(result.poses[1:, :2], truth[kept, :2], atol=1e-6)
+    np.testing.assert_allclose(result.landmarks, sim.landmarks[result.landmark_ids], atol=1e-6)
+
+
+def test_student_t_observation_costs_its_negative_log_likelihood():
+    """The robust kernel is the t's -log density up to a constant, (nu + 2) / 2 log(1 + d2 / nu),
+    d2 under R; the Gaussian keeps R."""
+    from online_em_slam.core.config import ObservationNoiseConfig
+    from online_em_slam.offline.batch import observation_noise_model
+    R = np.array([[0.04, 0.003], [0.003, 0.0009]])
+    rng = np.random.default_rng(3)
+    for nu in (3.0, 4.0, 30.0):
+        model = observation_noise_model(gtsam, R, ObservationNoiseConfig(model="student_t", dof=nu))
+        for e in rng.normal(size=(5, 2)) * [0.5, 0.1]:
+            d2 = e @ np.linalg.solve(R, e)
+            assert model.loss(model.squaredMahalanobisDistance(e)) == pytest.approx(0.5 * (nu + 2) * np.log1p(d2 / nu))
+    gaussian = observation_noise_model(gtsam, R, ObservationNoiseConfig(model="gaussian"))
+    e = np.array([0.1, -0.02])
+    assert gaussian.squaredMahalanobisDistance(e) == pytest.approx(e @ np.linalg.solve(R, e))

@@ -19,8 +19,13 @@ estimator's own bookkeeping, so the optimum is the reference for that run:
   valid per-point stds, at most ``association.max_observations_per_scan``), R from
   :func:`noise_covariance` under :func:`information_noise` (the estimator's
   likelihood; equal to ``config.noise`` without serial correlation) with the
-  per-point stds when given.  A mixture or Student-t noise is taken as its
-  Gaussian core R.  A sensor lever arm (offset_x, offset_y) uses a custom
+  per-point stds when given, on the scans the estimator uses: with
+  ``filter.minimum_travel_*`` one once the motion since the last used scan reaches
+  them, as the Feeder decides (a scan left out gets no pose variable);
+* the observation's negative log-likelihood is the estimator's noise law
+  (:func:`observation_noise_model`): a Student-t's exactly, through a robust kernel,
+  so the optimum is the maximum a posteriori of the model online EM filters with;
+  a mixture is taken as its Gaussian core R.  A sensor lever arm (offset_x, offset_y) uses a custom
   factor; without one, GTSAM's BearingRangeFactor2D with offset_yaw folded into
   the bearings, as :func:`.gtsam_batch.batch_estimate`.
 
@@ -47,6 +52,7 @@ from ..core.models.motion import propagate, step_jitter
 from ..core.models.observation import (MIN_DISTANCE, information_noise, inverse_observation, noise_covariance,
                                        sensor_poses)
 from ..pipeline.inputs import CONTROL, OBSERVATIONS, ODOMETRY
+from ..pipeline.travel import MinimumTravel
 from ..baselines.gtsam_batch import compose, levenberg_marquardt, symbols, tangent_covariance
 from .extra_poses import ExtraPoses
 
@@ -102,6 +108,10 @@ class _MotionBook:
         self.anchor: float | None = None
         self.start: float | None = None          # stamp of the first input used (the start pose)
         self.pose, self.cov = np.zeros(3), np.zeros((3, 3))
+        # The Feeder's rule on the motion since the last used scan (``since_used``, in the
+        # body frame of that scan's pose; None before the first): travel is the motion's alone.
+        self.travel = MinimumTravel.from_config(config)
+        self.since_used: np.ndarray | None = None
 
     def _predict(self, control: np.ndarray, dt: float) -> None:
         if dt > self.motion.max_step:
@@ -149,6 +159,8 @@ class _MotionBook:
         if not self.motion.uses_odometry and stamp >= self.input.last_stamp:
             self._advance_to(stamp)
         out = (self.pose.copy(), self.cov + step_jitter(self.motion))
+        if self.since_used is not None:
+            self.since_used = compose(self.since_used, self.pose)
         self.pose, self.cov = np.zeros(3), np.zeros((3, 3))
         return out
 
@@ -164,10 +176,25 @@ class _MotionBook:
         if not self.input.accept_stamp(stamp):
             return None
         self._advance_to(stamp)
+        if not self._travelled():
+            self.skipped["minimum_travel"] += 1
+            return None
         out = (self.pose.copy(), self.cov + step_jitter(self.motion))
         self.pose, self.cov = np.zeros(3), np.zeros((3, 3))
         self.anchor = stamp
         return out
+
+    def _travelled(self) -> bool:
+        """The scan is due under ``filter.minimum_travel_*`` (the first always is); a due scan
+        restarts the travel."""
+        if not self.travel.enabled:
+            return True
+        if self.since_used is not None:
+            self.travel.used(np.zeros(3))
+            if not self.travel.due(compose(self.since_used, self.pose)):
+                return False
+        self.since_used = np.zeros(3)
+        return True
 
 
 def usable_observations(config: SlamConfig, obs, skipped: Counter) -> np.ndarray:
@@ -414,13 +441,28 @@ def _add_step(gtsam, graph, problem: InputsProblem, config: SlamConfig, k: int, 
     lever = sensor.offset_x != 0.0 or sensor.offset_y != 0.0
     for j, y, R in zip(problem.obs_id[rows], problem.obs_y[rows], problem.obs_R[rows]):
         if lever:
-            graph.add(_lever_arm_factor(gtsam, gtsam.noiseModel.Gaussian.Covariance(R), X(k), L(int(j)), y, offset))
+            graph.add(_lever_arm_factor(gtsam, observation_noise_model(gtsam, R, config.noise), X(k), L(int(j)),
+                                        y, offset))
             continue
         # GTSAM orders the BearingRange measurement as (bearing, range).
         cov = np.array([[R[1, 1], R[0, 1]], [R[1, 0], R[0, 0]]])
         bearing = gtsam.Rot2(float(wrap_angle(y[1] + sensor.offset_yaw)))
         graph.add(gtsam.BearingRangeFactor2D(X(k), L(int(j)), bearing, float(y[0]),
-                                             gtsam.noiseModel.Gaussian.Covariance(cov)))
+                                             observation_noise_model(gtsam, cov, config.noise)))
+
+
+def observation_noise_model(gtsam, cov: np.ndarray, noise):
+    """The GTSAM noise model of an observation with covariance ``cov`` under the noise law ``noise``
+    (``config.noise``): a Gaussian N(0, cov); a Student-t with nu = ``noise.dof`` as its negative
+    log-likelihood (nu + 2) / 2 log(1 + d2 / nu), d2 the Mahalanobis distance under ``cov``, which
+    is a Cauchy kernel rho(x) = k^2 / 2 log(1 + x^2 / k^2) with k^2 = nu + 2 on the error whitened
+    by cov nu / (nu + 2) (Levenberg-Marquardt then reweighs each observation by the t's weight
+    (nu + 2) / (nu + d2), as the estimator's E-step does); a mixture as its core component."""
+    if noise.model != "student_t":
+        return gtsam.noiseModel.Gaussian.Covariance(cov)
+    nu = float(noise.dof)
+    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(math.sqrt(nu + 2.0)),
+                                          gtsam.noiseModel.Gaussian.Covariance(cov * (nu / (nu + 2.0))))
 
 
 def released_events(inputs):

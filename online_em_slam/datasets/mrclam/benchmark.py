@@ -17,8 +17,9 @@ For every run (dataset, robot, seconds, ids) the bag is converted once into
   noise online EM learned on the same run and seed (its noise.yaml as a second params
   file; ``_learned``); ``ekf_slam``: the same, but deterministic with the params' noise,
   so that setting runs once (the first seed);
-* ``batch``: GTSAM batch maximum likelihood, known ids only (skipped for unknown ids),
-  as ``ekf_slam``: the params' noise once, the learned noise of every seed.
+* ``batch``: GTSAM batch maximum a posteriori of the estimator's model (offline/batch.py:
+  the scans the travel rule keeps, the Student-t's likelihood), known ids only (skipped for
+  unknown ids), as ``ekf_slam``: the params' noise once, the learned noise of every seed.
 
 Each seed's online EM learns its own noise, so a baseline on the learned noise is as
 random as online EM's map, and is run and averaged over the same seeds, paired.
@@ -223,7 +224,7 @@ def run_method(item: Item) -> dict:
 
 
 def solve_batch(item: Item) -> dict:
-    """GTSAM batch ML (known ids) on the bag, scored as the runner scores a run."""
+    """GTSAM batch optimum (known ids) on the bag, scored as the runner scores a run."""
     import numpy as np
 
     from ...offline.batch import batch_on_bag

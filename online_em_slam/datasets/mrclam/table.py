@@ -27,7 +27,9 @@ LEGEND = ("Cells: landmark RMSE after the best rigid 2-D fit (shape, m), mean ±
           "error counts; unknown ids: paired by position within 1 m. "
           "Baselines and batch: the better of their two noise settings (more landmarks within 1 m, then lower "
           "shape RMSE), tagged (P) params file noise or (L) the noise online EM learned on that run and seed "
-          "(batch and EKF-SLAM on the params' noise: deterministic, one run). n/a: not run, failed or unavailable.")
+          "(batch and EKF-SLAM on the params' noise: deterministic, one run). Batch: GTSAM's maximum a posteriori "
+          "of the estimator's model (the scans the travel rule keeps, the Student-t's likelihood), known ids. "
+          "n/a: not run, failed or unavailable.")
 
 
 def mean_se(values) -> tuple[float, float]:
