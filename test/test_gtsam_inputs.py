@@ -14,7 +14,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from online_em_slam.offline.batch import collect_problem, lever_arm_measurement
+from online_em_slam.offline.batch import collect_problem
+from online_em_slam.offline.observation_factors import lever_arm_measurement
 from online_em_slam.core import OnlineEMSlam
 from online_em_slam.core.config import MotionConfig, SlamConfig
 from online_em_slam.core.models.motion import integrate_segments, odometry_increment, step_jitter
@@ -254,7 +255,7 @@ def test_student_t_observation_costs_its_negative_log_likelihood():
     """The robust kernel is the t's -log density up to a constant, (nu + 2) / 2 log(1 + d2 / nu),
     d2 under R; the Gaussian keeps R."""
     from online_em_slam.core.config import ObservationNoiseConfig
-    from online_em_slam.offline.batch import observation_noise_model
+    from online_em_slam.offline.observation_factors import observation_noise_model
     R = np.array([[0.04, 0.003], [0.003, 0.0009]])
     rng = np.random.default_rng(3)
     for nu in (3.0, 4.0, 30.0):

@@ -38,7 +38,6 @@ gtsam is imported when the optimisation runs.
 """
 from __future__ import annotations
 
-import math
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -49,12 +48,12 @@ from ..core.config import SlamConfig
 from ..core.filter.input_contract import MotionInput
 from ..core.models.angles import wrap_angle
 from ..core.models.motion import propagate, step_jitter
-from ..core.models.observation import (MIN_DISTANCE, information_noise, inverse_observation, noise_covariance,
-                                       sensor_poses)
+from ..core.models.observation import information_noise, inverse_observation, noise_covariance, sensor_poses
 from ..pipeline.inputs import CONTROL, OBSERVATIONS, ODOMETRY
 from ..pipeline.travel import MinimumTravel
 from ..baselines.gtsam_batch import compose, levenberg_marquardt, symbols, tangent_covariance
 from .extra_poses import ExtraPoses
+from .observation_factors import lever_arm_factor, observation_noise_model
 
 
 @dataclass
@@ -281,41 +280,6 @@ def initial_guess(problem: InputsProblem, config: SlamConfig, initial_pose) -> t
     return poses, ids, inverse_observation(sensor, problem.obs_y[first]).reshape(-1, 2)
 
 
-def lever_arm_measurement(pose, landmark, offset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """h = (range, bearing) of ``landmark`` from a sensor at ``offset`` (x, y, yaw) on the base
-    ``pose``, and its Jacobians in the Pose2 tangent space (X Exp(xi): xi_t in the body frame)
-    (2, 3) and in the landmark (2, 2)."""
-    x, y, phi = (float(v) for v in pose)
-    ox, oy, oyaw = offset
-    c, s = math.cos(phi), math.sin(phi)
-    dx = float(landmark[0]) - (x + c * ox - s * oy)
-    dy = float(landmark[1]) - (y + s * ox + c * oy)
-    q = max(dx * dx + dy * dy, MIN_DISTANCE ** 2)
-    r = math.sqrt(q)
-    h = np.array([r, wrap_angle(math.atan2(dy, dx) - phi - oyaw)])
-    H_l = np.array([[dx / r, dy / r], [-dy / q, dx / q]])
-    # Sensor point p + R(phi) (xi_t + xi_phi (-oy, ox)): dh/dxi = -H_l R [I | (-oy, ox)], bearing -1 on xi_phi.
-    lever = np.array([[c, -s, -c * oy - s * ox], [s, c, -s * oy + c * ox]])
-    H_x = -H_l @ lever
-    H_x[1, 2] -= 1.0
-    return h, H_x, H_l
-
-
-def _lever_arm_factor(gtsam, noise_model, pose_key, landmark_key, y: np.ndarray, offset):
-    """Range-bearing factor with the sensor lever arm, error h - y in (range, bearing) order."""
-    y = np.array(y, dtype=float)
-
-    def error(this, values, jacobians):
-        pose = values.atPose2(this.keys()[0])
-        h, H_x, H_l = lever_arm_measurement((pose.x(), pose.y(), pose.theta()),
-                                            np.asarray(values.atPoint2(this.keys()[1]), float), offset)
-        if jacobians is not None:
-            jacobians[0], jacobians[1] = H_x, H_l
-        return np.array([h[0] - y[0], wrap_angle(h[1] - y[1])])
-
-    return gtsam.CustomFactor(noise_model, [pose_key, landmark_key], error)
-
-
 def batch_from_inputs(events, config: SlamConfig, initial_pose, max_iterations: int = 100,
                       initial_pose_std: tuple[float, float, float] = (1e-3, 1e-3, 1e-4),
                       motion_source: str | None = None, init: str = "dead_reckoning") -> InputsBatchResult:
@@ -441,7 +405,7 @@ def _add_step(gtsam, graph, problem: InputsProblem, config: SlamConfig, k: int, 
     lever = sensor.offset_x != 0.0 or sensor.offset_y != 0.0
     for j, y, R in zip(problem.obs_id[rows], problem.obs_y[rows], problem.obs_R[rows]):
         if lever:
-            graph.add(_lever_arm_factor(gtsam, observation_noise_model(gtsam, R, config.noise), X(k), L(int(j)),
+            graph.add(lever_arm_factor(gtsam, observation_noise_model(gtsam, R, config.noise), X(k), L(int(j)),
                                         y, offset))
             continue
         # GTSAM orders the BearingRange measurement as (bearing, range).
@@ -449,20 +413,6 @@ def _add_step(gtsam, graph, problem: InputsProblem, config: SlamConfig, k: int, 
         bearing = gtsam.Rot2(float(wrap_angle(y[1] + sensor.offset_yaw)))
         graph.add(gtsam.BearingRangeFactor2D(X(k), L(int(j)), bearing, float(y[0]),
                                              observation_noise_model(gtsam, cov, config.noise)))
-
-
-def observation_noise_model(gtsam, cov: np.ndarray, noise):
-    """The GTSAM noise model of an observation with covariance ``cov`` under the noise law ``noise``
-    (``config.noise``): a Gaussian N(0, cov); a Student-t with nu = ``noise.dof`` as its negative
-    log-likelihood (nu + 2) / 2 log(1 + d2 / nu), d2 the Mahalanobis distance under ``cov``, which
-    is a Cauchy kernel rho(x) = k^2 / 2 log(1 + x^2 / k^2) with k^2 = nu + 2 on the error whitened
-    by cov nu / (nu + 2) (Levenberg-Marquardt then reweighs each observation by the t's weight
-    (nu + 2) / (nu + d2), as the estimator's E-step does); a mixture as its core component."""
-    if noise.model != "student_t":
-        return gtsam.noiseModel.Gaussian.Covariance(cov)
-    nu = float(noise.dof)
-    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(math.sqrt(nu + 2.0)),
-                                          gtsam.noiseModel.Gaussian.Covariance(cov * (nu / (nu + 2.0))))
 
 
 def released_events(inputs):

@@ -29,7 +29,7 @@ import numpy as np
 from ..core.models.angles import wrap_angle
 from ..core.models.observation import information_noise, inv_det_2x2, noise_covariance
 from ..baselines.gtsam_batch import symbols
-from .batch import lever_arm_measurement
+from .observation_factors import lever_arm_measurement
 
 #: Squared Mahalanobis distance above which a read is a misread: chi-square 2 dof, 0.999.
 DEFAULT_READ_GATE = 13.8
