@@ -1,4 +1,4 @@
-"""The GTSAM batch reference on recorded inputs (baselines/gtsam_inputs.py).
+"""The GTSAM batch reference on recorded inputs (offline/batch.py).
 
 (a) On a simulated run fed as events it is :func:`batch_estimate`'s problem, to 1e-6.
 (b) With the odometry model, noise-free odometry and scans give back the truth, and
@@ -8,6 +8,8 @@
     steps) the between factors are the estimator's transitions, read off OnlineEMSlam.
 (d) The sensor lever arm: the custom factor's Jacobians, and truth recovered.
 (e) The incremental (iSAM2) starting point reaches the same optimum.
+(f) The estimator's model: the travel rule's scans, and a Student-t observation costing its
+    negative log-likelihood.
 """
 from dataclasses import replace
 
