@@ -244,3 +244,20 @@ def test_compare_with_after_a_run_prints_the_paired_differences(sweep, capsys):
     assert benchmark.main(argv + ["--compare-with", str(earlier)]) == 0
     text = capsys.readouterr().out
     assert "## Paired differences" in text and "paired difference +0.0000 (one pair" in text
+
+
+def test_run_method_batch_is_the_models_optimum_as_a_run(sweep, tmp_path):
+    """``online-em-slam run BAG --method batch`` writes and scores the batch as a run; on the
+    synthetic circle (small noise, exact odometry) every landmark comes out near its survey."""
+    pytest.importorskip("gtsam")
+    from online_em_slam.offline import cli
+    out, _, code = sweep
+    assert code == 0
+    params = Path(__file__).resolve().parents[1] / "config" / "mrclam.yaml"
+    assert cli.main(["run", str(out / "bags" / "1_r1_20s_known"), "--params", str(params), "--method", "batch",
+                     "--output", str(tmp_path / "batch"), "--no-plot"]) == 0
+    metrics = json.loads((tmp_path / "batch" / "metrics.json").read_text())
+    assert metrics["method"] == "batch" and metrics["n_landmarks"] >= 10
+    assert metrics["landmarks"]["n_spurious"] == 0 and metrics["landmarks"]["shape_error"] < 0.05
+    rows = np.genfromtxt(tmp_path / "batch" / "trajectory.csv", delimiter=",", names=True)
+    assert rows.size > 50 and np.all(np.diff(rows["t"]) > 0)

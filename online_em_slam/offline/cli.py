@@ -1,6 +1,6 @@
 """Offline runner: a bag straight into an estimator (no DDS), deterministic for a seed.
 
-    online-em-slam run BAG --params FILE --output DIR [--method online_em|ekf_slam|fastslam2|marginal_slam]
+    online-em-slam run BAG --params FILE --output DIR [--method online_em|ekf_slam|fastslam2|marginal_slam|batch]
                        [--fleet]
                        [--seed S] [--particles N] [--initial-pose auto|ground_truth|gps|params|X,Y,YAW]
                        [--match-gate M] [--align] [--no-plot]
@@ -122,6 +122,14 @@ def _params_label(args) -> str:
     return " + ".join(str(path) for path in args.params)
 
 
+def _made_otherwise(method: str, inputs, config, initial):
+    """The batch's run (offline/batch_run.py), which no estimator makes; None for an estimator."""
+    if method != "batch":
+        return None
+    from .batch_run import batch_run
+    return batch_run(inputs, config, initial.pose)
+
+
 def cmd_run(args) -> int:
     if args.fleet:
         if args.method != "online_em":
@@ -130,7 +138,8 @@ def cmd_run(args) -> int:
         config, settings, file_values = read_parameters(args)
         return cmd_run_fleet(args, config, settings, file_values, {"params": _params_label(args)})
     config, _, file_values, inputs, initial = prepare(args)
-    metrics = run_one(inputs, config, args.method, initial, Path(args.output), **_run_options(args, file_values))
+    metrics = run_one(inputs, config, args.method, initial, Path(args.output), **_run_options(args, file_values),
+                      result=_made_otherwise(args.method, inputs, config, initial))
     print(summary_line(metrics))
     if metrics.get("frame") and metrics["frame"]["same_frame"] is not True:
         print(f"note: {metrics['frame']['note']}")
@@ -150,7 +159,8 @@ def cmd_compare(args) -> int:
     rows = []
     for method in args.methods:
         cfg = SlamConfig.from_dict(config.to_dict())      # fresh copy per method
-        metrics = run_one(inputs, cfg, method, initial, output / method, **_run_options(args, file_values))
+        metrics = run_one(inputs, cfg, method, initial, output / method, **_run_options(args, file_values),
+                          result=_made_otherwise(method, inputs, cfg, initial))
         print(summary_line(metrics), flush=True)
         rows.append(comparison_row(metrics))
     json_dump(output / "comparison.json", {"bag": str(args.bag), "params": _params_label(args),
@@ -186,14 +196,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser("run", help="run one method on a bag")
     common(run)
-    run.add_argument("--method", choices=METHODS, default="online_em")
+    run.add_argument("--method", choices=METHODS + ("batch",), default="online_em",
+                     help="an estimator, or batch: the estimator's model solved in full by GTSAM (known ids; "
+                          "docs/METHOD.md, \"The batch reference\")")
     run.add_argument("--fleet", action="store_true",
                      help="a fleet bag (robots under /robot1, /robot2, ...): every robot into one online EM "
                           "fleet, one joint map (online_em_slam.offline.fleet_runner)")
     run.set_defaults(func=cmd_run)
     compare = sub.add_parser("compare", help="run several methods on a bag and tabulate them")
     common(compare)
-    compare.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+    compare.add_argument("--methods", nargs="+", choices=METHODS + ("batch",), default=list(METHODS))
     compare.add_argument("--fleet", action="store_true",
                          help="a fleet bag: online EM's fleet run and the GTSAM batch over every robot "
                               "(file and learned noise) (online_em_slam.offline.fleet_compare)")

@@ -387,14 +387,17 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
 
 def run_one(inputs: BagInputs, config: SlamConfig, method: str, initial: InitialPose, output: Path,
             plot: bool = True, match_gate: float = DEFAULT_MATCH_GATE, align: bool = False,
-            extra: dict | None = None, param_values: dict | None = None) -> dict:
+            extra: dict | None = None, param_values: dict | None = None, result: RunResult | None = None) -> dict:
     """Run ``method`` on the inputs; write DIR/trajectory.csv, landmarks.csv, metrics.json [, noise.yaml, map.png].
 
-    ``param_values``: the parameter file's values, the base of noise.yaml.
+    ``param_values``: the parameter file's values, the base of noise.yaml.  ``result``: a run made
+    otherwise (the batch, offline/batch_run.py), scored and written as a run of ``method``.
     """
     output.mkdir(parents=True, exist_ok=True)
-    estimator = make_estimator(method, config, initial.pose)
-    result = feed(estimator, inputs)
+    estimator = None
+    if result is None:
+        estimator = make_estimator(method, config, initial.pose)
+        result = feed(estimator, inputs)
     result.method = method
     metrics = {"method": method, "bag": inputs.path, **(extra or {}),
                "seed": config.filter.seed, "num_particles": config.filter.num_particles,
