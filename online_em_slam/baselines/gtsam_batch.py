@@ -15,8 +15,8 @@ This is the batch ML estimate the online methods try to reach; gtsam is an
 optional benchmark dependency, imported inside :func:`batch_estimate`.
 
 The same problem on recorded inputs (a bag's event stream, the estimator's own
-motion bookkeeping) is :func:`batch_from_inputs` / :func:`batch_on_bag`
-(module ``gtsam_inputs``, re-exported here).
+motion bookkeeping) is offline/batch.py's ``batch_from_inputs``, made a run by
+offline/batch_run.py (``online-em-slam run --method batch``).
 """
 from __future__ import annotations
 

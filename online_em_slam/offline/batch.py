@@ -31,7 +31,7 @@ estimator's own bookkeeping, so the optimum is the reference for that run:
 
 The Pose2 tangent-space covariance is :func:`.gtsam_batch.tangent_covariance`;
 the initial guess is dead reckoning and each landmark at its first observation,
-or (``init="incremental"``, the default of :func:`batch_on_bag`) the estimate of
+or (``init="incremental"``, what offline/batch_run.py uses) the estimate of
 iSAM2 run over the scans in order: on a real run of minutes the dead reckoning
 drifts metres and Levenberg-Marquardt from it can stop in a local minimum.
 gtsam is imported when the optimisation runs.
@@ -430,31 +430,3 @@ def released_events(inputs):
     for item in path.flush():
         yield item.kind, item.stamp, item.payload
     inputs.refused = refused + Counter({k: v for k, v in path.drops.items() if v})
-
-
-def batch_on_bag(bag, params_files, initial_pose=None, max_iterations: int = 100,
-                 init: str = "incremental") -> InputsBatchResult:
-    """:func:`batch_from_inputs` on a bag read as the offline runner reads it, with the
-    configuration of the parameter files (one path or several, later ones override) and,
-    when ``initial_pose`` is None, the runner's initial pose (``--initial-pose auto``).
-    ``init`` defaults to ``incremental``: from a real run's dead reckoning LM can stop in
-    a local minimum far from the optimum."""
-    from ..parameters.yaml_file import config_from_params, load_params
-    from .runner import choose_initial_pose, read_inputs
-
-    single = isinstance(params_files, str) or hasattr(params_files, "__fspath__")
-    files = [params_files] if single else list(params_files)
-    file_values: dict = {}
-    for path in files:
-        file_values.update(load_params(path))
-    config, settings = config_from_params(file_values)
-    inputs = read_inputs(bag, settings)
-    if not inputs.events:
-        raise ValueError(f"{bag}: no inputs on the configured topics")
-    if initial_pose is None:
-        initial_pose = choose_initial_pose("auto", inputs, config, settings, file_values).pose
-    result = batch_from_inputs(released_events(inputs), config, initial_pose, max_iterations,
-                               motion_source=settings.motion_source, init=init)
-    for reason, count in inputs.refused.items():
-        result.skipped[reason] = result.skipped.get(reason, 0) + int(count)
-    return result

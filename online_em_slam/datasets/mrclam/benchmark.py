@@ -224,34 +224,14 @@ def run_method(item: Item) -> dict:
 
 
 def solve_batch(item: Item) -> dict:
-    """GTSAM batch optimum (known ids) on the bag, scored as the runner scores a run."""
-    import numpy as np
-
-    from ...offline.batch import batch_on_bag
-    from ...offline.evaluation import sensor_points, trajectory_metrics
-    from ...offline.report import write_trajectory
-    config, _, _, inputs, initial = prepared(item)
-    started = time.perf_counter()
-    result = batch_on_bag(item.bag, list(item.params), initial.pose)
-    wall = time.perf_counter() - started
-    out = Path(item.out)
-    out.mkdir(parents=True, exist_ok=True)
-    trajectory = np.column_stack([result.stamps, result.poses])
-    write_trajectory(out / "trajectory.csv", trajectory)
-    np.savetxt(out / "landmarks.csv", np.column_stack([result.landmark_ids, result.landmarks]),
-               fmt=["%d", "%.6f", "%.6f"], delimiter=",", header="id,x,y", comments="")
-    metrics = {"method": "batch", "bag": item.bag, "params": " + ".join(item.params), "seed": None,
-               "initial_pose": initial.to_dict(), "n_landmarks": int(len(result.landmark_ids)),
-               "timing": {"wall_time_s": wall, "solve_time_s": result.solve_time},
-               "batch": {"iterations": result.iterations, "initial_error": result.initial_error,
-                         "final_error": result.final_error, "n_observations": result.n_observations,
-                         "skipped": {k: int(v) for k, v in result.skipped.items()}}}
-    if inputs.landmarks is not None:
-        metrics["landmarks"] = scored(item, inputs, result.landmarks, result.landmark_ids)
-    if inputs.has_gps:
-        points = sensor_points(result.poses, (config.sensor.offset_x, config.sensor.offset_y))
-        metrics["trajectory"] = trajectory_metrics(result.stamps, points, inputs.gps_times, inputs.gps_xy).to_dict()
-    return metrics
+    """The batch (offline/batch_run.py: the estimator's model solved in full, known ids) on the bag,
+    written and scored as ``online-em-slam run --method batch`` does."""
+    from ...offline.batch_run import batch_run
+    from ...offline.runner import run_one
+    config, _, values, inputs, initial = prepared(item)
+    extra = {"params": " + ".join(item.params), "benchmark_method": item.method}
+    return run_one(inputs, config, "batch", initial, Path(item.out), plot=item.plot, match_gate=MATCH_GATE,
+                   extra=extra, param_values=values, result=batch_run(inputs, config, initial.pose))
 
 
 def scored(item: Item, inputs, positions, ids) -> dict:
