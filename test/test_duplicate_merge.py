@@ -140,3 +140,18 @@ def test_a_merge_is_counted_among_the_estimators_decisions():
         slam.add_observations(0.2 * step, Observations(np.array([5.0]), np.array([0.1])))
     drops, decided = split_decisions(slam.drops)
     assert decided["merged_duplicate_landmark"] == 3 and "merged_duplicate_landmark" not in drops
+
+
+def test_a_deep_copy_of_the_merger_is_equal_and_shares_no_set():
+    """The rollback's checkpoint deep-copies the estimator (pipeline/rollback.py): the merger's copy
+    must hold the same pairs and go its own way afterwards."""
+    merger = DuplicateMerger(0.999, 2.0)
+    merger.seen_together(np.array([3, 7, 9]))
+    merger.seen_together(np.array([7, 11]))
+    twin = copy.deepcopy(merger)
+    assert (twin.gate, twin.radius, twin.together) == (merger.gate, merger.radius, merger.together)
+    twin.seen_together(np.array([3, 11]))
+    twin.merged(7, 9)
+    assert merger.together == {3: {3, 7, 9}, 7: {3, 7, 9, 11}, 9: {3, 7, 9}, 11: {7, 11}}
+    memo = {}
+    assert copy.deepcopy([merger, merger], memo)[1] is memo[id(merger)]     # one copy per object

@@ -61,7 +61,7 @@ class MotionInput:
             self.drops["control_ignored_by_odometry_model"] += 1
             return None
         u = np.asarray(control, dtype=float).reshape(-1)
-        if u.shape[0] < 2 or not np.all(np.isfinite(u[:2])):
+        if u.shape[0] < 2 or not (math.isfinite(u[0]) and math.isfinite(u[1])):
             self.drops["non_finite_control"] += 1
             return None
         if not self._plausible_control(u):

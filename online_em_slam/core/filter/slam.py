@@ -28,7 +28,7 @@ from .input_contract import MotionInput, usable_observations
 from ..mapping import mapfile, persistence
 from ..mapping.landmarks import LandmarkTable
 from ..em.noise.learner import NoiseLearner
-from ..models.observation import information_noise, sensor_poses
+from ..models.observation import sensor_poses
 from .serial_errors import LastInnovations
 from .observation_terms import ObservationTerms, observation_terms, scan_noise
 from .prediction import PendingMotion
@@ -318,7 +318,7 @@ class OnlineEMSlam:
         cfg = self.config
         y = np.stack([obs.ranges[obs_idx], obs.bearings[obs_idx]], axis=-1)            # (P, 2)
         in_use = self._noise.noise_config()
-        noise = information_noise(in_use)      # serially correlated errors inform less
+        noise = self._noise.weighed_noise()      # serially correlated errors inform less
         R = scan_noise(noise, obs, obs_idx)
         weighting = self._map.n_obs[rows] >= cfg.association.min_observations_for_weighting
         inflate = cfg.em.inflate_with_map_uncertainty and weighting.any()

@@ -110,6 +110,7 @@ class NoiseLearner:
         self.gains_estimate, self.gain_errors = self.gains_in_use.copy(), np.full(len(self.gain_names), math.inf)
         self._gain_warm = np.zeros(len(self.gain_names), dtype=bool)   # each in use once known to the tolerance
         self._motion_config = (None, None)                # (gains and scales, the motion config with them)
+        self._weighed = (None, None)                      # (the noise in use, its information_noise)
         self._gains_config_made = (None, None)            # (gains, the configured motion config with them)
         # The motion noise's shape (motion_shape): one scale per noise group (models/motion.py
         # shape_groups: speed and turning, constant and relative, for a controlled model).
@@ -212,6 +213,13 @@ class NoiseLearner:
         """The observation noise for R, the likelihood and the gates."""
         return self._in_use
 
+    def weighed_noise(self) -> ObservationNoiseConfig:
+        """information_noise of the noise in use (the likelihood's and the M-step's), made again only
+        when the noise in use changes (the filter and the statistics ask for it at every scan)."""
+        if self._weighed[0] is not self._in_use:
+            self._weighed = (self._in_use, information_noise(self._in_use))
+        return self._weighed[1]
+
     def motion_scale(self) -> float:
         """Factor on the motion noise covariance (1 until warmed up or when not learned; 1 with
         motion_shape, whose two scales the motion config carries)."""
@@ -236,7 +244,8 @@ class NoiseLearner:
     def motion_config(self):
         """The motion config to integrate with: the configured one with the gains in use
         (the motion scale multiplies the covariance it gives; motion_shape's two scales are in it)."""
-        key = tuple(self.gains_in_use) + tuple(self.scales_in_use)
+        # The arrays' bytes: a cheaper key than their values (asked for at every control message).
+        key = (self.gains_in_use.tobytes(), self.scales_in_use.tobytes())
         if self._motion_config[0] != key:
             base = self._gains_config()
             self._motion_config = (key, scaled_groups(shape_basis(base), self.groups, self.scales_in_use)
@@ -245,7 +254,7 @@ class NoiseLearner:
 
     def _gains_config(self):
         """The configured motion config with the gains in use (made again only when they change)."""
-        key = tuple(self.gains_in_use)
+        key = self.gains_in_use.tobytes()
         if self._gains_config_made[0] != key:
             self._gains_config_made = (key, replace(self.config.motion, **{
                 name: float(value) for name, value in zip(self.gain_names, self.gains_in_use)}))
@@ -265,7 +274,7 @@ class NoiseLearner:
         if not self.learn:
             return
         n_obs = np.asarray(n_obs)
-        weighed = information_noise(self._in_use)
+        weighed = self.weighed_noise()
         configured, R_filter = self._configured_R(data, weighed)
         use = (n_obs >= self.settings.min_landmark_observations) & configured
         pose = data.pose_mean()
