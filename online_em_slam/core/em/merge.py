@@ -16,6 +16,8 @@ landmarks ever associated in one scan are two.
 """
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from ..mapping.landmarks import LandmarkTable
@@ -38,9 +40,10 @@ class DuplicateMerger:
         without copy.deepcopy's walk over every element (the rollback's checkpoint takes one
         every 64 filter steps; on Victoria Park that walk was three quarters of its cost)."""
         twin = DuplicateMerger.__new__(DuplicateMerger)
-        twin.gate, twin.radius = self.gate, self.radius
-        twin.together = {i: set(seen) for i, seen in self.together.items()}
         memo[id(self)] = twin
+        rest = {name: value for name, value in vars(self).items() if name != "together"}
+        twin.__dict__.update(copy.deepcopy(rest, memo))
+        twin.together = {i: set(seen) for i, seen in self.together.items()}
         return twin
 
     def seen_together(self, ids: np.ndarray) -> None:
