@@ -25,8 +25,8 @@ HEADING_BINS = (0.0, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, np.inf)
 
 
 def pairs(run) -> np.ndarray:
-    """(n, 4): range error pair product terms come from columns 0-1 (previous, this), bearing 2-3;
-    then displacement (m) and heading change (deg) in columns 4-5."""
+    """(n, 6), one row per two consecutive sightings of a landmark: range errors (previous, this),
+    bearing errors (previous, this), the robot's displacement between them (m), its turn (deg)."""
     e_r, e_b = errors(run)
     x, y, yaw = ground_truth_at(run, run.measurement_times)
     rows = []

@@ -106,16 +106,9 @@ def noise_covariance(noise: ObservationNoiseConfig, ranges: np.ndarray,
     """
     ranges = np.asarray(ranges, dtype=float)
     sr = noise.sigma_range + noise.range_growth * np.maximum(ranges, 0.0)
-    if range_std is None and bearing_std is None:
-        # The usual case, with the scalars broadcast instead of filled in (the same products:
-        # made for every scan, several times).
-        R = np.empty(sr.shape + (2, 2))
-        R[..., 0, 0] = sr * sr
-        R[..., 1, 1] = noise.sigma_bearing * noise.sigma_bearing
-        R[..., 0, 1] = R[..., 1, 0] = noise.rho * (sr / noise.sigma_range)
-        return R
-    sb = np.full_like(sr, noise.sigma_bearing)
-    rho = np.full_like(sr, noise.rho) * (sr / noise.sigma_range)
+    # The configured bearing std and rho stay scalars or broadcast (R is made for every scan,
+    # several times); given stds replace them where valid.
+    sb, rho = noise.sigma_bearing, noise.rho * (sr / noise.sigma_range)
     if range_std is not None:
         good = np.isfinite(range_std) & (np.asarray(range_std) > 0)
         sr = np.where(good, range_std, sr)
@@ -124,7 +117,7 @@ def noise_covariance(noise: ObservationNoiseConfig, ranges: np.ndarray,
         good = np.isfinite(bearing_std) & (np.asarray(bearing_std) > 0)
         sb = np.where(good, bearing_std, sb)
         rho = np.where(good, 0.0, rho)
-    R = np.empty(sr.shape + (2, 2))
+    R = np.empty(np.shape(sr) + (2, 2))
     R[..., 0, 0] = sr * sr
     R[..., 1, 1] = sb * sb
     R[..., 0, 1] = R[..., 1, 0] = rho
