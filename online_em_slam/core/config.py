@@ -171,11 +171,22 @@ class ObservationNoiseConfig:
                                                     "bearing): each observation then informs as (1 - c) / (1 + c) "
                                                     "of an independent one (R x (1 + c) / (1 - c) in the "
                                                     "likelihood and the M-step).")
+    # A camera's error repeats while its view of the landmark does (docs/METHOD.md, "Serially
+    # correlated errors"): 0 keeps one correlation for every observation.
+    serial_length: tuple[float, float] = param((0.0, 0.0), 0.0, 1e3, doc="Viewpoint change (m) over which "
+                                               "the serial correlation decays by e (range, bearing): an "
+                                               "observation's c = serial_correlation x exp(-v / length), v the "
+                                               "sensor's travel plus serial_turn_length per radian turned since "
+                                               "the landmark's previous sighting (a first sighting: c = 0); 0: one "
+                                               "c for every observation.")
+    serial_turn_length: float = param(1.2, 0.0, 1e3, doc="Viewpoint change (m) a turn of one radian counts "
+                                      "as in the serial correlation's decay (noise.serial_length).")
 
     def validate(self, prefix: str = "noise") -> None:
         weights = check_length(f"{prefix}.mixture_weights", self.mixture_weights)
         scales = check_length(f"{prefix}.mixture_scales", self.mixture_scales)
         check_length(f"{prefix}.serial_correlation", self.serial_correlation, 2, " (range, bearing)")
+        check_length(f"{prefix}.serial_length", self.serial_length, 2, " (range, bearing)")
         if len(weights) != len(scales):
             raise ValueError(f"{prefix}.mixture_weights and {prefix}.mixture_scales must have the same, non-zero length")
         check_fields(self, prefix)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from .config_fields import check_fields, check_length, check_range, param, param_info
 
 LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "dof", "range_growth", "serial_correlation",
-                   "motion_scale", "motion_gains", "motion_gain_in_place", "motion_delay", "motion_shape")
+                   "serial_length", "motion_scale", "motion_gains", "motion_gain_in_place", "motion_delay", "motion_shape")
 
 
 @dataclass
@@ -23,7 +23,8 @@ class NoiseLearningConfig:
         sigma_range), ``serial_correlation`` (how alike a landmark's
         observation errors are from one scan to the next: real detectors repeat
         their errors, so consecutive observations inform less than independent
-        ones), ``motion_scale`` (one factor on the whole motion noise
+        ones), ``serial_length`` (with it: how fast that likeness decays as the
+        sensor's view of the landmark changes, noise.serial_length), ``motion_scale`` (one factor on the whole motion noise
         covariance) and ``motion_shape`` (instead: one factor per noise group, for
         a controlled model the speed's and the turning's constant and relative
         parts, so the starting values' ratio does not stay; docs/METHOD.md
@@ -69,7 +70,9 @@ class NoiseLearningConfig:
                                     "motion_scale"),
                                    choices=LEARNABLE_NOISE, doc="Quantities learned: any of range, bearing, "
                                    "correlation, mixture (with noise.model mixture), dof (with noise.model "
-                                   "student_t), range_growth, serial_correlation, motion_scale, motion_shape (a "
+                                   "student_t), range_growth, serial_correlation, serial_length (with serial_correlation: its "
+                                   "decay with the viewpoint's change, noise.serial_length), motion_scale, "
+                                   "motion_shape (a "
                                    "scale per motion noise group: speed and turning, constant and relative "
                                    "to the control, instead of motion_scale), motion_gains (the "
                                    "calibration of the motion input: motion.translation_gain, "
@@ -141,6 +144,9 @@ class NoiseLearningConfig:
             raise ValueError(f"{prefix}.learn = {self.learn!r} must be a list of names of {', '.join(LEARNABLE_NOISE)}")
         if "motion_gain_in_place" in self.learn and "motion_gains" not in self.learn:
             raise ValueError(f"{prefix}.learn: motion_gain_in_place is a third motion gain, learned with motion_gains")
+        if "serial_length" in self.learn and "serial_correlation" not in self.learn:
+            raise ValueError(f"{prefix}.learn: serial_length is the serial correlation's decay, learned with "
+                             "serial_correlation")
         for name in self._LIMITS:
             check_length(f"{prefix}.{name}", getattr(self, name), 2, " (floor, ceiling)")
         check_fields(self, prefix)

@@ -18,7 +18,8 @@ estimator's own bookkeeping, so the optimum is the reference for that run:
   estimator keeps (finite, range within [sensor.min_range, sensor.max_range],
   valid per-point stds, at most ``association.max_observations_per_scan``), R from
   :func:`noise_covariance` under :func:`information_noise` (the estimator's
-  likelihood; equal to ``config.noise`` without serial correlation) with the
+  likelihood; equal to ``config.noise`` without serial correlation; with a correlation that
+  decays with the viewpoint, each observation's own, :func:`viewpoint_changes`) with the
   per-point stds when given, on the scans the estimator uses: with
   ``filter.minimum_travel_*`` one once the motion since the last used scan reaches
   them, as the Feeder decides (a scan left out gets no pose variable);
@@ -48,7 +49,9 @@ from ..core.config import SlamConfig
 from ..core.filter.input_contract import MotionInput
 from ..core.models.angles import wrap_angle
 from ..core.models.motion import propagate, step_jitter
-from ..core.models.observation import information_noise, inverse_observation, noise_covariance, sensor_poses
+from ..core.models.observation import (information_noise, inverse_observation, noise_covariance,
+                                       observation_correlation, sensor_poses, serial_decays, serially_weighed,
+                                       viewpoint_change)
 from ..pipeline.inputs import CONTROL, OBSERVATIONS, ODOMETRY
 from ..pipeline.travel import MinimumTravel
 from ..baselines.gtsam_batch import compose, levenberg_marquardt, symbols, tangent_covariance
@@ -224,7 +227,8 @@ def collect_problem(events, config: SlamConfig, motion_source: str | None = None
         motion_source = "odom" if config.motion.uses_odometry else "control"
     skipped: Counter = Counter()
     book = _MotionBook(config, motion_source, skipped)
-    noise = information_noise(config.noise)
+    decays = serial_decays(config.noise)
+    noise = config.noise if decays else information_noise(config.noise)
     stamps, increments, covs = [], [], []
     obs_pose, obs_id, obs_y, obs_R = [], [], [], []
     extra = ExtraPoses(extra_poses, book, stamps, increments, covs)
@@ -253,10 +257,31 @@ def collect_problem(events, config: SlamConfig, motion_source: str | None = None
         stamps.append(book.start)
     cat = (lambda parts, shape, dtype=float: np.concatenate(parts).astype(dtype) if parts
            else np.zeros(shape, dtype=dtype))
-    return InputsProblem(np.asarray(stamps, float), np.asarray(increments, float).reshape(-1, 3),
-                         np.asarray(covs, float).reshape(-1, 3, 3), cat(obs_pose, (0,), np.int64),
-                         cat(obs_id, (0,), np.int64), cat(obs_y, (0, 2)), cat(obs_R, (0, 2, 2)),
-                         Counter({k: v for k, v in skipped.items() if v}))
+    problem = InputsProblem(np.asarray(stamps, float), np.asarray(increments, float).reshape(-1, 3),
+                            np.asarray(covs, float).reshape(-1, 3, 3), cat(obs_pose, (0,), np.int64),
+                            cat(obs_id, (0,), np.int64), cat(obs_y, (0, 2)), cat(obs_R, (0, 2, 2)),
+                            Counter({k: v for k, v in skipped.items() if v}))
+    if decays:
+        c = observation_correlation(config.noise, viewpoint_changes(problem, config))
+        problem.obs_R = serially_weighed(problem.obs_R, c)
+    return problem
+
+
+def viewpoint_changes(problem: InputsProblem, config: SlamConfig) -> np.ndarray:
+    """(P,) the viewpoint change of each observation since its landmark's previous one in the same
+    chain (inf for a first sighting), as the estimator's serial weighing measures it
+    (models/observation.py, viewpoint_change), between dead-reckoned sensor poses: their
+    differences within a chain do not depend on where it starts."""
+    poses = [np.zeros(3)]
+    for k, increment in enumerate(problem.increments, start=1):
+        poses.append(np.zeros(3) if k in problem.chain_starts else compose(poses[-1], increment))
+    sensor = sensor_poses(np.array(poses)[problem.obs_pose], config.sensor)
+    chain = np.searchsorted(np.asarray(problem.chain_starts), problem.obs_pose, side="right")
+    order = np.lexsort((np.arange(problem.obs_id.size), problem.obs_id))     # by landmark, then in time
+    same = (problem.obs_id[order][1:] == problem.obs_id[order][:-1]) & (chain[order][1:] == chain[order][:-1])
+    previous = np.full(sensor.shape, np.nan)
+    previous[order[1:][same]] = sensor[order[:-1][same]]
+    return viewpoint_change(previous, sensor, config.noise.serial_turn_length)
 
 
 def chain_starts(problem: InputsProblem, initial_pose) -> dict[int, np.ndarray]:

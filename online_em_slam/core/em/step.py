@@ -30,7 +30,8 @@ class FilterStepData:
     motion_mean (3,), motion_jacobian (3, 3), motion_cov (3, 3): the transition of
     the previous weighted mean pose (the linearisation track of the observed M-step);
     motion_gain_sensitivity (3, G): d motion_mean / d the gains (models/motion.py, GAIN_NAMES),
-    when it learns the gains.
+    when it learns the gains; serial (P, 2): each observation's serial correlation, by which R is
+    weighed, when it decays with the viewpoint (else None: R is that of information_noise).
     """
 
     step: int
@@ -54,6 +55,7 @@ class FilterStepData:
     motion_gain_sensitivity: np.ndarray | None = None
     motion_cov_parts: np.ndarray | None = None     # (m, 3, 3): motion_cov's part from each noise group, unit scales
     mean_pose: np.ndarray | None = None            # (3,): pose_mean(), once computed
+    serial: np.ndarray | None = None
 
     def pose_mean(self) -> np.ndarray:
         """The weighted mean pose xbar_t (3,), circular mean for the yaw; computed once per step."""

@@ -17,7 +17,8 @@ class ObservationTerms:
     """Per-scan observation terms under theta_{t-1}, N particles, P associated observations.
 
     y (P, 2), R (P, 2, 2), nu (N, P, 2) innovations, H (N, P, 2, 2) = dh/dtheta,
-    precision (N, P, 2, 2) responsibility-weighted R^-1, log_likelihood (N,).
+    precision (N, P, 2, 2) responsibility-weighted R^-1, log_likelihood (N,); serial (P, 2) each
+    observation's serial correlation when it decays with the viewpoint (R is then weighed by it).
     """
 
     y: np.ndarray
@@ -26,6 +27,7 @@ class ObservationTerms:
     H: np.ndarray
     precision: np.ndarray
     log_likelihood: np.ndarray
+    serial: np.ndarray | None = None
 
     @classmethod
     def empty(cls, n: int) -> "ObservationTerms":

@@ -29,7 +29,7 @@ from ..mapping import mapfile, persistence
 from ..mapping.landmarks import LandmarkTable
 from ..em.noise.learner import NoiseLearner
 from ..models.observation import sensor_poses
-from .serial_errors import LastInnovations
+from .serial_errors import SerialWeighing
 from .observation_terms import ObservationTerms, observation_terms, scan_noise
 from .prediction import PendingMotion
 from .warmup import WarmupReplay
@@ -74,7 +74,9 @@ class OnlineEMSlam:
         n = cfg.filter.num_particles
         pose = np.asarray(initial_pose if initial_pose is not None else self._initial_pose, dtype=float)
         self._initial_pose = pose.copy()
-        self._last_innovations = LastInnovations()
+        # Views of each landmark when the serial correlation decays with them (serial_errors.py).
+        self._serial = SerialWeighing(any(cfg.noise.serial_length) or (
+            cfg.noise_learning.enabled and "serial_length" in cfg.noise_learning.learn))
         self._particles = np.tile(pose, (n, 1))
         std = np.asarray(cfg.filter.initial_pose_std, dtype=float)
         if np.any(std > 0):
@@ -276,7 +278,7 @@ class OnlineEMSlam:
         sensor = sensor_poses(particles, self.config.sensor)
         prior_weights, _ = normalize_log_weights(log_prior)
         rows, obs_idx = self._associate_scan(obs, sensor, prior_weights, report)
-        terms = self._observation_terms(obs, obs_idx, rows, sensor, ancestors)
+        terms = self._observation_terms(obs, obs_idx, rows, sensor, ancestors, prior_weights)
         log_w = log_prior + terms.log_likelihood
         weights = self._normalise(log_w)
         data = self._step_data(particles, weights, prior_weights, ancestors, trans_cov, rows, terms, sensor)
@@ -309,7 +311,7 @@ class OnlineEMSlam:
         obs_idx, rows = self._associate(obs, sensor, prior_weights, report)
         return rows, obs_idx
 
-    def _observation_terms(self, obs, obs_idx, rows, sensor, ancestors) -> ObservationTerms:
+    def _observation_terms(self, obs, obs_idx, rows, sensor, ancestors, prior_weights) -> ObservationTerms:
         """Innovations, Jacobians, likelihood and responsibilities under theta_{t-1}; counts the observations.
         The likelihood weighs with the landmarks seen often enough (``inflate_with_map_uncertainty``: its
         covariance widened by H Sigma_k H^T; ``filter.serial_likelihood`` ar1: under AR(1) errors)."""
@@ -319,14 +321,16 @@ class OnlineEMSlam:
         y = np.stack([obs.ranges[obs_idx], obs.bearings[obs_idx]], axis=-1)            # (P, 2)
         in_use = self._noise.noise_config()
         noise = self._noise.weighed_noise()      # serially correlated errors inform less
-        R = scan_noise(noise, obs, obs_idx)
+        ids = self._map.ids[rows]
+        R, c = self._serial.scan_noise(in_use, noise, obs, obs_idx, ids, sensor, prior_weights)
         weighting = self._map.n_obs[rows] >= cfg.association.min_observations_for_weighting
         inflate = cfg.em.inflate_with_map_uncertainty and weighting.any()
         terms = observation_terms(y, R, self._map.theta[rows], sensor, noise, weighting,
                                   self._m_step.covariances(rows) if inflate else None)
+        terms.serial = c
         if cfg.filter.serial_likelihood == "ar1":       # the weights under AR(1) errors (serial_errors.py)
-            self._last_innovations.weigh(terms, self._step, self._map.ids[rows], scan_noise(in_use, obs, obs_idx),
-                                         ancestors, in_use, weighting)
+            self._serial.last.weigh(terms, self._step, ids, scan_noise(in_use, obs, obs_idx), ancestors, in_use,
+                                    weighting, c)
         self._map.n_obs[rows] += 1
         return terms
 
@@ -342,7 +346,7 @@ class OnlineEMSlam:
             step=self._step, particles=particles, weights=weights, log_weights_prev=self._log_w,
             prior_weights=prior_weights, ancestors=ancestors, transition_means=self._pred_mean,
             transition_covs=trans_cov, rows=rows, y=terms.y, R=terms.R, sensor=sensor, nu=terms.nu,
-            H=terms.H, precision=terms.precision, motion_mean=self._motion.pose,
+            H=terms.H, precision=terms.precision, serial=terms.serial, motion_mean=self._motion.pose,
             motion_jacobian=self._motion.jacobian,
             motion_cov=self._motion.cov * self._noise.motion_scale() + motion_models.step_jitter(self.config.motion),
             motion_gain_sensitivity=self._motion.sensitivity, motion_cov_parts=self._motion.cov_parts)

@@ -53,11 +53,13 @@ _OTHER_FIELDS = {"version": (), "pose": (3,)}
 # Optional: the noise in use when learned online (core/em/noise/learner.py), restored on load:
 # noise = (sigma_range, range_growth, sigma_bearing, rho, motion_scale), noise_mixture =
 # (mixture weights, mixture scales) as a (2, C) array, with Student-t noise
-# noise_dof (), its degrees of freedom, and noise_serial (2,), the serial correlation
-# of range and bearing errors (absent: 0).
+# noise_dof (), its degrees of freedom, noise_serial (2,), the serial correlation
+# of range and bearing errors (absent: 0), and noise_serial_length (2,), its decay with the
+# viewpoint's change (absent: 0, none).
 _NOISE_FIELDS = ("noise", "noise_mixture")
 _DOF_FIELD = "noise_dof"
 _SERIAL_FIELD = "noise_serial"
+_SERIAL_LENGTH_FIELD = "noise_serial_length"
 MAX_MIXTURE_COMPONENTS = 16
 _NUMERIC = {"float": "biuf", "count": "biu", "id": "iu", "flag": "biu"}
 _KIND_TEXT = {"float": "numbers", "count": "integers", "id": "integer ids", "flag": "booleans"}
@@ -233,7 +235,18 @@ def check_map(arrays: dict, max_landmarks: int = MAX_LANDMARKS) -> dict[str, np.
         if not present:
             raise MapFileError(f"{_SERIAL_FIELD} without noise")
         checked[_SERIAL_FIELD] = _check_serial(np.asarray(arrays[_SERIAL_FIELD]))
+    if _SERIAL_LENGTH_FIELD in arrays:
+        if not present:
+            raise MapFileError(f"{_SERIAL_LENGTH_FIELD} without noise")
+        checked[_SERIAL_LENGTH_FIELD] = _check_serial_length(np.asarray(arrays[_SERIAL_LENGTH_FIELD]))
     return checked
+
+
+def _check_serial_length(length: np.ndarray) -> np.ndarray:
+    """The serial correlation's decay lengths of range and bearing: two numbers in [0, 1000] m."""
+    if length.shape != (2,) or length.dtype.kind not in "iuf" or not np.all((length >= 0) & (length <= 1e3)):
+        raise MapFileError(f"{_SERIAL_LENGTH_FIELD} = {length.tolist()} must be two numbers in [0, 1000]")
+    return length.astype(float)
 
 
 def _check_serial(serial: np.ndarray) -> np.ndarray:
@@ -261,8 +274,8 @@ def write_map(path, arrays: dict) -> None:
 
 
 def _expected_shape(name: str, m: int | None) -> tuple | None:
-    if name in _NOISE_FIELDS or name in (_DOF_FIELD, _SERIAL_FIELD):
-        return {"noise": (5,), _DOF_FIELD: (), _SERIAL_FIELD: (2,)}.get(name)
+    if name in _NOISE_FIELDS or name in (_DOF_FIELD, _SERIAL_FIELD, _SERIAL_LENGTH_FIELD):
+        return {"noise": (5,), _DOF_FIELD: (), _SERIAL_FIELD: (2,), _SERIAL_LENGTH_FIELD: (2,)}.get(name)
     if name in _OTHER_FIELDS:
         return _OTHER_FIELDS[name]
     return None if m is None else (m,) + ROW_FIELDS[name][0]
@@ -302,7 +315,8 @@ def _read_arrays(path: str, max_landmarks: int) -> dict[str, np.ndarray]:
         if arrays["theta"].ndim != 2 or arrays["theta"].shape[1] != 2:     # M comes from theta: check it first
             raise MapFileError(f"theta has shape {arrays['theta'].shape}, expected (M, 2)")
         m = arrays["theta"].shape[0]
-        for name in (*ROW_FIELDS, "pose", *(n for n in (*_NOISE_FIELDS, _DOF_FIELD, _SERIAL_FIELD) if n in present)):
+        for name in (*ROW_FIELDS, "pose", *(n for n in (*_NOISE_FIELDS, _DOF_FIELD, _SERIAL_FIELD, _SERIAL_LENGTH_FIELD)
+                                            if n in present)):
             if name not in arrays:
                 arrays[name] = _read_member(archive, name, m, max_landmarks)
         return arrays

@@ -59,4 +59,6 @@ def saved_noise(arrays: dict[str, np.ndarray],
         noise = replace(noise, dof=float(arrays["noise_dof"]))
     if "noise_serial" in arrays:
         noise = replace(noise, serial_correlation=tuple(float(v) for v in arrays["noise_serial"]))
+    if "noise_serial_length" in arrays:
+        noise = replace(noise, serial_length=tuple(float(v) for v in arrays["noise_serial_length"]))
     return noise, scale

@@ -142,6 +142,38 @@ def information_noise(noise: ObservationNoiseConfig) -> ObservationNoiseConfig:
                    sigma_bearing=noise.sigma_bearing * f_b, rho=noise.rho * f_r * f_b, serial_correlation=(0.0, 0.0))
 
 
+def serial_decays(noise: ObservationNoiseConfig) -> bool:
+    """The serial correlation decays with the viewpoint's change (noise.serial_length), so each
+    observation has its own c (:func:`observation_correlation`)."""
+    return any(noise.serial_length) and any(noise.serial_correlation)
+
+
+def viewpoint_change(previous: np.ndarray, pose: np.ndarray, turn_length: float) -> np.ndarray:
+    """v (P,) of the sensor pose ``pose`` (3,) or (P, 3) since ``previous`` (P, 3): the distance
+    travelled plus ``turn_length`` per radian of heading change; a row of NaN (no previous
+    sighting) gives inf."""
+    d = pose - previous
+    v = np.hypot(d[..., 0], d[..., 1]) + turn_length * np.abs(wrap_angle(d[..., 2]))
+    return np.where(np.isnan(v), np.inf, v)
+
+
+def observation_correlation(noise: ObservationNoiseConfig, v: np.ndarray) -> np.ndarray:
+    """Each observation's serial correlation c = c0 exp(-v / l) (P, 2) after a viewpoint change
+    ``v`` (P,) since its landmark's previous sighting (inf: none, c = 0); a length l of 0 keeps c0."""
+    c0, length = np.asarray(noise.serial_correlation, dtype=float), np.asarray(noise.serial_length, dtype=float)
+    decaying = length > 0.0
+    with np.errstate(invalid="ignore"):
+        decay = np.exp(-v[:, None] / np.where(decaying, length, 1.0))
+    return c0 * np.where(decaying, decay, 1.0)
+
+
+def serially_weighed(R: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """R (P, 2, 2) with each observation's standard deviations scaled as :func:`information_noise`
+    does, by sqrt((1 + c_j) / (1 - c_j)), with its own correlation c (P, 2)."""
+    f = np.sqrt((1.0 + c) / (1.0 - c))
+    return R * f[:, :, None] * f[:, None, :]
+
+
 def chi_square_2_quantile(probability: float) -> float:
     """The d2 below which a chi-square(2) variable falls with ``probability``: its CDF is
     1 - exp(-d2 / 2), so -2 log(1 - p) (scipy.stats' chi2.ppf to an ulp, without the import

@@ -40,7 +40,7 @@ from ...config import ObservationNoiseConfig, SlamConfig
 from ...models.angles import wrap_angle
 from ...models.motion import (GAIN_NAMES, ROTATION_STDS, TRANSLATION_STDS, gain, scaled_groups, scaled_noise,
                               shape_basis, shape_groups, step_jitter)
-from ...models.observation import information_noise, noise_covariance
+from ...models.observation import information_noise, noise_covariance, sensor_poses, serially_weighed
 from ..segment_factors import motion_residual
 from ..step import FilterStepData
 from .averages import StochasticAverage
@@ -49,13 +49,13 @@ from .motion_noise import (MotionWindow, absolute_error, group_scales, predictio
                            shape_statistic)
 from .observation import UsedObservations, mixture_m_step, observation_statistics, student_t_dof
 from .range_fit import RangeBins, range_noise_fit
-from .serial_correlation import PreviousInnovations, pair_sample, pose_free, serial_correlation, whitened
+from .serial_correlation import SerialStatistic, pose_free, whitened
 
 MOTION_QUANTITIES = frozenset({"motion_scale", "motion_gains", "motion_delay", "motion_shape"})
 # The calibration of the motion input (motion_gains.py): gains and the drive's dead time.
 CALIBRATION = frozenset({"motion_gains", "motion_delay"})
 OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture", "dof", "range_growth",
-                                    "serial_correlation"})
+                                    "serial_correlation", "serial_length"})
 # Largest change of the motion scale in use per filter step, in log: a factor 9 takes 110 steps.
 MAX_SCALE_RATE = 0.02
 # Its bounds on the ratio, by numpy's exp (math.exp may round differently).
@@ -86,8 +86,8 @@ class NoiseLearner:
         self.learn = learn
         self._tails = bool(learn & {"mixture", "dof"})   # the tail statistics' M-steps run
         self.observations = StochasticAverage(self.settings.step_size_exponent)
-        self.serial = StochasticAverage(self.settings.step_size_exponent)    # consecutive innovations' moments
-        self._previous = PreviousInnovations()
+        self.serial = SerialStatistic(self.settings.step_size_exponent, "serial_length" in learn,
+                                      config.noise.serial_turn_length)
         self.motion = StochasticAverage(self.settings.motion_step_size_exponent)
         self.window = MotionWindow(self.settings.motion_window + 1)
         self._jitter_key, self._jitter = None, None
@@ -165,6 +165,8 @@ class NoiseLearner:
             values["noise_dof"] = np.array(noise.dof)
         if any(noise.serial_correlation):
             values["noise_serial"] = np.array(noise.serial_correlation, dtype=float)
+        if any(noise.serial_length):
+            values["noise_serial_length"] = np.array(noise.serial_length, dtype=float)
         return values
 
     # ------------------------------------------------------------ what the estimator uses
@@ -289,7 +291,7 @@ class NoiseLearner:
         if self.learn & MOTION_QUANTITIES:
             self._update_motion(data, used, pose)        # every step: silence is part of the motion
         if "serial_correlation" in self.learn and used is not None:
-            self._update_serial(data.step, used, (data.rows if ids is None else np.asarray(ids))[use])
+            self._update_serial(data.step, used, (data.rows if ids is None else np.asarray(ids))[use], pose)
         if self.learn & OBSERVATION_QUANTITIES and data.rows.size:
             # Latent variables under the latest estimate (the E-step of online EM runs at the
             # current parameter, also while the filter still warms up).
@@ -304,25 +306,23 @@ class NoiseLearner:
 
     def _configured_R(self, data: FilterStepData, weighed: ObservationNoiseConfig) -> tuple[np.ndarray, np.ndarray]:
         """(observations whose R is the filter's, from ``weighed``, the noise in use as the filter
-        weighs it (P,), that R (P, 2, 2)); those with their own range_std / bearing_std carry a
-        known noise and say nothing about R."""
-        expected = noise_covariance(weighed, data.y[:, 0])
+        weighs it, or each observation's serial correlation (P,), that R (P, 2, 2)); those with
+        their own range_std / bearing_std carry a known noise and say nothing about R."""
+        expected = (noise_covariance(weighed, data.y[:, 0]) if data.serial is None
+                    else serially_weighed(noise_covariance(self._in_use, data.y[:, 0]), data.serial))
         if np.array_equal(data.R, expected):        # the usual case: isclose holds wherever == does
             return np.ones(expected.shape[:-2], dtype=bool), expected
         return np.all(np.isclose(data.R, expected, rtol=1e-9, atol=1e-15), axis=(-1, -2)), expected
 
-    def _update_serial(self, step: int, used: UsedObservations, ids: np.ndarray) -> None:
-        """Pair the scan's whitened pose-free innovations with the same landmarks' in the scan
-        before and blend their moments (serial_correlation.py)."""
+    def _update_serial(self, step: int, used: UsedObservations, ids: np.ndarray, pose: np.ndarray) -> None:
+        """The scan's whitened pose-free innovations into the serial correlation's statistic
+        (serial_correlation.py)."""
         if ids.size < 2:
             return
         nu, H_x, scale = used.scan
         residual, cov, shared = pose_free(nu, used.S, H_x, used.map_term)
-        z = whitened(residual, cov, scale)
-        previous, paired = self._previous.pair(step, ids, z)
-        if previous.shape[0] and np.isfinite(previous).all() and np.isfinite(z[paired]).all():
-            share = shared[paired] / np.diagonal(cov[paired], axis1=-2, axis2=-1) * scale[paired, None]
-            self.serial.blend(pair_sample(previous, z[paired], share), previous.shape[0])
+        share = shared / np.diagonal(cov, axis1=-2, axis2=-1) * scale[:, None]
+        self.serial.update(step, ids, whitened(residual, cov, scale), share, sensor_poses(pose, self.config.sensor))
 
     def _step_jitter(self) -> np.ndarray:
         """step_jitter of the motion config, made again only when its jitter values change."""
@@ -446,8 +446,8 @@ class NoiseLearner:
             values.update(mixture_m_step(stats[2:], self.estimate.mixture_scales, s))
         if "dof" in self.learn:
             values["dof"] = student_t_dof(float(stats[2]), *s.dof_limits)
-        if "serial_correlation" in self.learn and self.serial.value is not None:
-            values["serial_correlation"] = serial_correlation(self.serial.value, s.serial_correlation_limit)
+        if "serial_correlation" in self.learn:
+            values.update(self.serial.values(s.serial_correlation_limit))
         return replace(noise, **values)
 
     # ------------------------------------------------------------ reporting
@@ -460,7 +460,7 @@ class NoiseLearner:
                 "motion_scale_in_use": "motion_scale" in self.learn and self.motion_scale_warm,
                 "sigma_range": noise.sigma_range, "sigma_bearing": noise.sigma_bearing, "rho": noise.rho,
                 "range_growth": noise.range_growth, "model": noise.model, "dof": noise.dof,
-                "serial_correlation": list(noise.serial_correlation),
+                "serial_correlation": list(noise.serial_correlation), "serial_length": list(noise.serial_length),
                 "mixture_weights": list(noise.mixture_weights), "mixture_scales": list(noise.mixture_scales),
                 "motion_scale": self.scale_estimate, "motion_scale_error": _finite_or_none(self.motion_scale_error()),
                 "motion_scales": self.scales_estimate.tolist() if self.shape else None,
@@ -477,6 +477,7 @@ class NoiseLearner:
                   "noise.sigma_bearing": noise.sigma_bearing, "noise.rho": noise.rho,
                   "noise.range_growth": noise.range_growth, "noise.dof": noise.dof,
                   "noise.serial_correlation": [float(v) for v in noise.serial_correlation],
+                  "noise.serial_length": [float(v) for v in noise.serial_length],
                   "noise.mixture_weights": [float(v) for v in noise.mixture_weights],
                   "noise.mixture_scales": [float(v) for v in noise.mixture_scales]}
         motion = (scaled_groups(shape_basis(self.config.motion), self.groups, self.scales_in_use) if self.shape
