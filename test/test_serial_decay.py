@@ -186,3 +186,34 @@ def test_a_saved_map_keeps_the_decay_and_refuses_a_wrong_one(tmp_path):
     arrays["noise_serial_length"] = np.array([0.3, -1.0])
     with pytest.raises(mapfile.MapFileError, match="noise_serial_length"):
         mapfile.check_map(arrays)
+
+
+def _replays(monkeypatch, known_after: int | None) -> tuple[list[int], OnlineEMSlam]:
+    """The steps at which the warm-up replay started, with the serial decay known from filter
+    step ``known_after`` on (None: from the start)."""
+    from online_em_slam.core.em.noise.learner import NoiseLearner
+    from online_em_slam.core.filter.warmup import WarmupReplay
+
+    scenario = simulate(ScenarioConfig(seed=1, n_steps=400))
+    config = slam_config_for(scenario, num_particles=20)
+    config = replace(config, noise_learning=replace(config.noise_learning, enabled=True, warmup_observations=50,
+                                                    learn=("range", "bearing", "serial_correlation", "serial_length")))
+    slam = OnlineEMSlam(config, initial_pose=scenario.initial_pose, stamp=0.0)
+    starts, replay = [], WarmupReplay.replay
+    monkeypatch.setattr(NoiseLearner, "serial_known", property(
+        lambda self: known_after is None or slam._step >= known_after))
+    monkeypatch.setattr(WarmupReplay, "replay", lambda self, estimator, *a: (starts.append(estimator._step),
+                                                                             replay(self, estimator, *a)))
+    for step in scenario.steps:
+        feed(slam, step)
+    return starts, slam
+
+
+def test_the_warmup_is_filtered_again_once_the_serial_decay_is_known(monkeypatch):
+    """The decay unknown when the warm-up replay starts: one more replay once it is known, then
+    no inputs are kept; known from the start: the one replay."""
+    once, slam = _replays(monkeypatch, None)
+    assert len(once) == 1 and slam._warmup.inputs is None
+    twice, slam = _replays(monkeypatch, once[0] + 60)
+    assert len(twice) == 2 and twice[0] == once[0] and twice[1] >= once[0] + 60
+    assert slam._warmup.inputs is None and slam.learned_noise()["warmup_replayed"]

@@ -98,7 +98,7 @@ def write_noise_params(path, learned_parameters: dict, file_values: dict, learne
     values.update(learned_parameters)
     tails = {"mixture": ("mixture_weights", "mixture_scales"), "student_t": ("dof",)}.get(learned["model"], ())
     shown = {k: learned[k] for k in ("model", "sigma_range", "sigma_bearing", "rho", "range_growth", *tails,
-                                     "serial_correlation",
+                                     "serial_correlation", "serial_length",
                                      "motion_scale", "observations", "motion_steps")}
     header = ("# Noise learned online by `online-em-slam run` (docs/METHOD.md, \"Noise learned online\").\n"
               "# The run's parameter file with the noise.* values and the motion noise stds it ended with\n"

@@ -9,7 +9,10 @@ inputs; once it has every input the estimator received, it becomes the estimator
 Once.  Before that, once, the same for the calibration of the motion input
 (``replay_on_calibration``): when a learned motion gain comes into use, the
 inputs so far are filtered again with the gains known and the values in use
-then, and the kept inputs go on growing for the warm-up replay.
+then, and the kept inputs go on growing for the warm-up replay.  And once after it, when the
+serial correlation's decay is learned and was not known yet when the warm-up replay started
+(``NoiseLearner.serial_known``): a few early pairs of sightings fix it poorly, and the early map,
+filtered under it, would keep their weights (docs/METHOD.md, "A correlation that decays").
 
 Offline the new estimator is fed everything at once, inside the input that made the
 replay due.  A live node cannot stop that long (a fleet's replay on MRCLAM is most
@@ -54,6 +57,7 @@ class WarmupReplay:
         self.calibrate = calibrate      # replay once when a motion gain comes into use first
         self.calibrated = False
         self._calibrating = False       # the replay under way is the calibration's
+        self._serial_pending = False    # the serial decay was not known when the warm-up replay started
         self.replaying = None
         self._fed = 0                   # kept inputs fed to ``replaying``
         self._warmup_length = 0         # the inputs up to the one that made the replay due
@@ -78,12 +82,17 @@ class WarmupReplay:
         or (the calibration replay, once) a learned motion gain is."""
         if self.inputs is None or self.replaying is not None:
             return False
+        if self.replayed:               # kept only while the serial decay's replay is pending
+            return learner.serial_known
         return learner.all_in_use or (self.calibrate and not self.calibrated and learner.calibration_in_use)
 
     def replay(self, estimator, in_slices: bool = False) -> None:
         """Start the replay for ``estimator``: all of it now, or (``in_slices``) in :meth:`advance`.
         The calibration's while some learned value is not in use yet, else the warm-up's."""
-        self._calibrating = self.calibrate and not all(learner.all_in_use for learner in self._learners(estimator))
+        learners = self._learners(estimator)
+        self._calibrating = not self.replayed and self.calibrate and not all(learner.all_in_use for learner in learners)
+        self._serial_pending = not (self.replayed or self._calibrating) and not all(
+            learner.serial_known for learner in learners)
         self.replaying = self._restarted(estimator)
         self._fed, self._warmup_length = 0, len(self.inputs)
         if not in_slices:
@@ -150,6 +159,10 @@ class WarmupReplay:
         estimator.drops = estimator._input.drops = drops   # the motion input counts into it too
         if self._calibrating:           # the warm-up replay is still to come: the kept inputs go on
             self.replaying, self._calibrating, self.calibrated = None, False, True
+            estimator._warmup = self
+            return
+        if self._serial_pending:        # once more when the decay is known: the kept inputs go on
+            self.replaying, self.replayed = None, True
             estimator._warmup = self
             return
         estimator._warmup.replayed, estimator._warmup.calibrated = True, self.calibrated

@@ -180,6 +180,12 @@ class NoiseLearner:
         return bool(self.learn) and observation and motion and gains
 
     @property
+    def serial_known(self) -> bool:
+        """The serial correlation's decay, when learned, has as many pairs as the observation noise
+        has observations when warm (the warm-up replay comes again once it has: warmup.py)."""
+        return self.serial.pairs is None or self.serial.pairs.counts.sum() >= self.settings.warmup_observations
+
+    @property
     def calibration_in_use(self) -> bool:
         """A learned motion gain has replaced its configured value."""
         return self.gains is not None and bool(self._gain_warm.any())
