@@ -217,3 +217,22 @@ def test_the_warmup_is_filtered_again_once_the_serial_decay_is_known(monkeypatch
     twice, slam = _replays(monkeypatch, once[0] + 60)
     assert len(twice) == 2 and twice[0] == once[0] and twice[1] >= once[0] + 60
     assert slam._warmup.inputs is None and slam.learned_noise()["warmup_replayed"]
+
+
+def test_the_quasi_differences_noise_stays_a_covariance():
+    """c = (0.95, 0) with a range-bearing correlation of 0.9: R - C R C is not positive definite;
+    the likelihood's Q keeps R - C R C's diagonal and a valid cross term, and the log-likelihood
+    is finite."""
+    from online_em_slam.core.filter.serial_errors import innovation_noise
+
+    R = np.array([[[0.04, 0.9 * 0.2 * 0.03], [0.9 * 0.2 * 0.03, 0.0009]]])
+    c = np.array([[0.95, 0.0]])
+    Q = innovation_noise(R, c, np.ones(1, dtype=bool))
+    assert np.all(np.linalg.eigvalsh(Q) > 0.0)
+    np.testing.assert_allclose(np.diagonal(Q, axis1=-2, axis2=-1), [[0.04 * (1 - 0.95 ** 2), 0.0009]])
+    last = LastInnovations()
+    last.store(0, np.array([3]), np.full((4, 1, 2), 0.1))
+    noise = replace(NOISE, model="student_t", rho=0.9 * 0.2 * 0.03, serial_correlation=(0.95, 0.0))
+    loglik = ar1_log_likelihood(last, 1, np.array([3]), np.full((4, 1, 2), -0.1), R, np.arange(4), noise,
+                                np.ones(1, dtype=bool))
+    assert np.isfinite(loglik).all()

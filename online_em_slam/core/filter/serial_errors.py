@@ -98,6 +98,10 @@ def innovation_noise(R: np.ndarray, c: np.ndarray, matched: np.ndarray,
     """Q = R - C R C for the observations with a predecessor (P, 2, 2), ``unmatched`` (default R)
     for the rest; ``c`` (2,) or each observation's (P, 2)."""
     Q = R * (1.0 - c[..., :, None] * c[..., None, :])
+    # With c_range != c_bearing and a strong range-bearing covariance R - C R C is not positive
+    # definite (no AR(1) has that R): the cross term kept within its bound, the diagonal exact.
+    bound = 0.999 * np.sqrt(Q[..., 0, 0] * Q[..., 1, 1])
+    Q[..., 0, 1] = Q[..., 1, 0] = np.clip(Q[..., 0, 1], -bound, bound)
     return np.where(matched[:, None, None], Q, R if unmatched is None else unmatched)
 
 
