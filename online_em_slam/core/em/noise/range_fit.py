@@ -36,7 +36,7 @@ class RangeBins:
         index = np.searchsorted(self.edges, ranges)
         order = np.argsort(index, kind="stable")                    # a bin's observations together, in their order
         r = ranges[order]
-        bins, sizes, sums = _group_sums(index[order], np.array([r, r * r, squared[order]]))
+        bins, sizes, sums = group_sums(index[order], np.array([r, r * r, squared[order]]))
         sample = sums / sizes[:, None]                              # np.mean: the sum over the count
         counts = self.counts[bins]
         gamma = batch_step_sizes(counts, sizes, self.alpha)
@@ -51,7 +51,7 @@ class RangeBins:
         return self.counts[full].astype(float) ** self.alpha, self.values[full]
 
 
-def _group_sums(index: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def group_sums(index: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(groups (K,), sizes (K,), sums (K, Q)) of ``values`` (Q, n, rows contiguous) by the sorted
     group ``index`` (n,).
 

@@ -36,7 +36,7 @@ import numpy as np
 from ...mapping.last_sighting import LastSightings
 from ...models.observation import viewpoint_change
 from .averages import StochasticAverage, batch_step_sizes, mean
-from .range_fit import _group_sums
+from .range_fit import group_sums
 
 # Bins of the viewpoint change v (m) between a landmark's consecutive sightings; the last is
 # open.  Fine where a camera's correlation falls (0.9 within 2 cm, 0.6 at 10-20 cm, none at 1 m).
@@ -98,7 +98,7 @@ class ViewpointPairs:
         sample = np.hstack([v[:, None], before * now - m, before ** 2 - m, now ** 2 - m])       # (Q, 7)
         index = np.searchsorted(VIEWPOINT_EDGES, v)
         order = np.argsort(index, kind="stable")
-        bins, sizes, sums = _group_sums(index[order], sample[order].T)
+        bins, sizes, sums = group_sums(index[order], sample[order].T)
         means = sums / sizes[:, None]
         counts = self.counts[bins]
         gamma = batch_step_sizes(counts, sizes, self.alpha)
