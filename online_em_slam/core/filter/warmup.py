@@ -13,6 +13,7 @@ then, and the kept inputs go on growing for the warm-up replay.  And once after 
 serial correlation's decay is learned and was not known yet when the warm-up replay started
 (``NoiseLearner.serial_known``): a few early pairs of sightings fix it poorly, and the early map,
 filtered under it, would keep their weights (docs/METHOD.md, "A correlation that decays").
+A fleet (core/fleet/warmup.py) replays its warm-up once.
 
 Offline the new estimator is fed everything at once, inside the input that made the
 replay due.  A live node cannot stop that long (a fleet's replay on MRCLAM is most
