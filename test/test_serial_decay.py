@@ -163,6 +163,8 @@ def test_the_filter_weighs_each_observation_by_its_own_correlation_and_learns_th
     assert all(serial is not None and configured.all() for serial, configured in seen)
     assert np.isfinite(slam.landmarks().positions).all()
     assert all(length > 0.0 for length in slam.learned_noise()["serial_length"])
+    assert slam._noise.serial.pairs.counts.sum() > 0                         # pairs were binned
+    assert tuple(slam._noise.estimate.serial_length) != (0.5, 0.5)          # and the decay fitted
 
 
 def test_a_saved_map_keeps_the_decay_and_refuses_a_wrong_one(tmp_path):

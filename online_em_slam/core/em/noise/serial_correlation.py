@@ -147,35 +147,15 @@ class PreviousInnovations:
     (ids are stable when the landmark table drops rows)."""
 
     def __init__(self) -> None:
-        self.ids = np.zeros(0, dtype=np.int64)              # sorted
-        self.steps = np.zeros(0, dtype=np.int64)
-        self.z = np.zeros((0, 2))
+        self.last = LastSightings(3)                         # step, z (2)
 
     def pair(self, step: int, ids: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(previous whitened innovations (Q, 2), which of ``ids`` (P,) they pair with (P,)): the
         landmarks also seen at ``step - 1``; then remembers ``z`` (P, 2) as their latest."""
-        ids = np.asarray(ids, dtype=np.int64)
-        if not self.ids.size:
-            self._insert(step, ids, z)
-            return np.zeros((0, 2)), np.zeros(ids.shape, dtype=bool)
-        at = np.minimum(np.searchsorted(self.ids, ids), self.ids.size - 1)
-        known = self.ids[at] == ids
-        consecutive = known & (self.steps[at] == step - 1)
-        previous = self.z[at[consecutive]]
-        self.steps[at[known]] = step
-        self.z[at[known]] = z[known]
-        self._insert(step, ids[~known], z[~known])
-        return previous, consecutive
-
-    def _insert(self, step: int, ids: np.ndarray, z: np.ndarray) -> None:
-        if not ids.size:
-            return
-        ids, first = np.unique(ids, return_index=True)     # a landmark twice in one scan: once
-        merged = np.concatenate([self.ids, ids])
-        order = np.argsort(merged, kind="stable")
-        self.ids = merged[order]
-        self.steps = np.concatenate([self.steps, np.full(ids.size, step, dtype=np.int64)])[order]
-        self.z = np.vstack([self.z, z[first]])[order]
+        previous = self.last.recall(ids)
+        consecutive = previous[:, 0] == step - 1
+        self.last.record(ids, np.hstack([np.full((len(ids), 1), float(step)), z]))
+        return previous[consecutive, 1:], consecutive
 
 
 def pose_free(nu: np.ndarray, S: np.ndarray, H_x: np.ndarray, D: np.ndarray | None = None):
