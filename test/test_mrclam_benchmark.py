@@ -149,6 +149,8 @@ def test_plan_of_a_later_window(tmp_path):
     assert [item.key for item in items] == ["9_r4_600s_from600s_known/bag", "9_r4_600s_from600s_known/online_em/seed0"]
     assert {item.start for item in items} == {600}
     assert benchmark.record(items[0], "ok", {})["start"] == 600
+    assert benchmark.record(items[1], "ok", {})["internal_errors"] == 0
+    assert benchmark.record(items[1], "ok", {"runner_skipped": {"internal_error": 3}})["internal_errors"] == 3
 
 
 def test_failed_need_skips_dependents(tmp_path):
@@ -159,6 +161,17 @@ def test_failed_need_skips_dependents(tmp_path):
     records = benchmark.run_all([source, run], jobs=1, log=lambda *a, **k: None)
     assert [r["status"] for r in records] == ["failed", "skipped"]
     assert "needs r/bag (failed)" in records[1]["error"]
+
+
+def test_a_run_with_inputs_failed_inside_the_estimator_says_so(tmp_path, monkeypatch):
+    """Such a run completes (each failing input dropped), but its line in the log must say so."""
+    run = benchmark.Item("r/online_em/seed0", "run", "r", 1, 1, 20, "known", str(tmp_path / "bag"),
+                         method="online_em", seed=0, out=str(tmp_path / "run"))
+    monkeypatch.setattr(benchmark, "run_method", lambda item: {"runner_skipped": {"internal_error": 4}})
+    (tmp_path / "run").mkdir()
+    lines = []
+    benchmark.run_all([run], jobs=1, log=lambda line, **k: lines.append(line))
+    assert "r/online_em/seed0: ok" in lines[0] and "4 input(s) failed inside the estimator" in lines[0]
 
 
 def test_better_noise_setting_and_summary():

@@ -18,7 +18,10 @@ with fields range, bearing and optional id, range_std, bearing_std) ->
 parameter file (``--params``), read with :mod:`online_em_slam.parameters.yaml_file`.
 Empty observation clouds and observations before the first motion input are not
 fed (counted under ``runner_skipped`` in metrics.json, with every input the path
-or the node's cloud and quaternion checks refused, by reason).  A bag or parameter
+or the node's cloud and quaternion checks refused, by reason).  An input that raises
+inside the estimator is dropped with the estimate kept as before it (the node's
+rule), counted as ``internal_error``, its message kept in ``input_failures`` (the
+first five) and reported on stderr after the summary line.  A bag or parameter
 file that cannot be used (not a bag, unreadable, a topic of another message type
 than the node reads, no motion input, no observations, a refused value) ends the
 run with one line ``online-em-slam: error: FILE: what is wrong`` and exit status 1.
@@ -65,7 +68,7 @@ from ..core.config import SlamConfig
 from .evaluation import DEFAULT_MATCH_GATE
 from ..parameters.specs import ParameterError
 from ..parameters.yaml_file import ParamFileError, config_from_params, load_params
-from .report import comparison_markdown, comparison_row, json_dump, summary_line
+from .report import comparison_markdown, comparison_row, failure_warning, json_dump, summary_line
 from .runner import METHODS, choose_initial_pose, read_inputs, run_one
 
 
@@ -130,6 +133,12 @@ def _made_otherwise(method: str, inputs, config, initial):
     return batch_run(inputs, config, initial.pose)
 
 
+def _warn_failures(metrics: dict) -> None:
+    warning = failure_warning(metrics)
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
+
+
 def cmd_run(args) -> int:
     if args.fleet:
         if args.method != "online_em":
@@ -141,6 +150,7 @@ def cmd_run(args) -> int:
     metrics = run_one(inputs, config, args.method, initial, Path(args.output), **_run_options(args, file_values),
                       result=_made_otherwise(args.method, inputs, config, initial))
     print(summary_line(metrics))
+    _warn_failures(metrics)
     if metrics.get("frame") and metrics["frame"]["same_frame"] is not True:
         print(f"note: {metrics['frame']['note']}")
     print(f"wrote {args.output}/trajectory.csv, landmarks.csv, metrics.json" + ("" if args.no_plot else ", map.png")
@@ -162,6 +172,7 @@ def cmd_compare(args) -> int:
         metrics = run_one(inputs, cfg, method, initial, output / method, **_run_options(args, file_values),
                           result=_made_otherwise(method, inputs, cfg, initial))
         print(summary_line(metrics), flush=True)
+        _warn_failures(metrics)
         rows.append(comparison_row(metrics))
     json_dump(output / "comparison.json", {"bag": str(args.bag), "params": _params_label(args),
                                            "seed": config.filter.seed, "num_particles": config.filter.num_particles,

@@ -37,6 +37,8 @@ def evaluate(result, inputs, config: SlamConfig, match_gate: float = DEFAULT_MAT
         "drops": {k: int(v) for k, v in sorted(result.drops.items())},
         "runner_skipped": result.skipped,
     }
+    if result.failures:
+        metrics["input_failures"] = list(result.failures)
     positions, traj = np.asarray(lm.positions).reshape(-1, 2), result.trajectory
     if frame is not None and (inputs.landmarks is not None or inputs.has_gps):
         metrics["frame"] = frame.to_dict()
@@ -140,6 +142,17 @@ def summary_line(metrics: dict) -> str:
                  f"real-time factor {_fmt(tm['real_time_factor'], 1)} (wall {_fmt(tm['wall_time_s'], 1)} s "
                  f"for {_fmt(tm['dataset_duration_s'], 1)} s)")
     return " ".join(parts)
+
+
+def failure_warning(metrics: dict) -> str | None:
+    """A line for stderr when inputs raised inside the estimator (each dropped, the estimate kept as
+    before it): how many, and the first one's message."""
+    count = metrics.get("runner_skipped", {}).get("internal_error", 0)
+    if not count:
+        return None
+    first = metrics.get("input_failures", ["(message not kept)"])[0]
+    return (f"warning: {count} input(s) failed inside {metrics['method']} and were dropped, the estimate "
+            f"kept as before each; first: {first} (metrics.json: runner_skipped, input_failures)")
 
 
 def _fmt(value, digits: int = 3) -> str:

@@ -27,10 +27,14 @@ from ..messages.cloud import CloudFormatError, decode_message, observations_from
 from ..core.config import SlamConfig
 from .evaluation import DEFAULT_MATCH_GATE, InitialPose, initial_pose_from_gps
 from .frames import check_frame, points_to_truth, poses_to_truth
-from ..pipeline import CONTROL, OBSERVATIONS, ODOMETRY, InputPipeline
+from ..pipeline import CONTROL, KIND_NAME, OBSERVATIONS, ODOMETRY, InputPipeline
 from ..bag.progress import Progress
 from ..messages.quaternion import odometry_yaw
 from .tum import write_run_tum
+
+# Inputs that raised inside the estimator are dropped and counted (``internal_error``); the
+# first few messages go into metrics.json's ``input_failures`` and the run's warning.
+MAX_FAILURES_KEPT = 5
 
 METHODS = ("online_em", "ekf_slam", "fastslam2", "marginal_slam")
 GT_POSITION_TOPIC = "/ground_truth/position"
@@ -337,6 +341,7 @@ class RunResult:
     skipped: dict
     n_observation_messages: int
     known_ids: bool = False               # some observation carried a landmark id (known association)
+    failures: list = field(default_factory=list)   # the first inputs that raised inside the estimator
 
 
 def feed(estimator, inputs: BagInputs) -> RunResult:
@@ -351,9 +356,11 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
     bag releases the rest.  ``wall_time`` is the time spent in the pipeline and
     the estimator (reading the bag excluded).
     """
-    durations, rows, refused = [], [], Counter()
+    durations, rows, refused, failures = [], [], Counter(), []
 
     def record(item, fed) -> None:
+        if fed.error is not None and len(failures) < MAX_FAILURES_KEPT:
+            failures.append(f"{KIND_NAME[item.kind]} at {item.stamp:.3f}: {fed.error!r}")
         if fed.report is not None:
             durations.append(fed.report.duration)
         if fed.trajectory_point is not None:
@@ -382,7 +389,7 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
     skipped.update({k: int(v) for k, v in refused.items() if v})
     return RunResult("", np.asarray(rows, dtype=float).reshape(-1, 4), estimator.landmarks(), durations, busy,
                      (last - first) if first is not None else 0.0, dict(estimator.drops), skipped, n_obs_msgs,
-                     known_ids)
+                     known_ids, failures)
 
 
 def run_one(inputs: BagInputs, config: SlamConfig, method: str, initial: InitialPose, output: Path,

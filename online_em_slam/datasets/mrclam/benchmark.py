@@ -266,7 +266,8 @@ def record(item: Item, status: str, metrics: dict, error: str = "") -> dict:
            "matched_fitted": lm.get("n_matched_fitted"), "n_true": lm.get("n_true"),
            "spurious": lm.get("n_spurious"), "trajectory_rmse": tr.get("rmse"),
            "mean_step_ms": tm.get("mean_step_ms"), "estimator_wall_s": tm.get("wall_time_s"),
-           "item_wall_s": (metrics.get("benchmark") or {}).get("item_wall_s")}
+           "item_wall_s": (metrics.get("benchmark") or {}).get("item_wall_s"),
+           "internal_errors": (metrics.get("runner_skipped") or {}).get("internal_error", 0)}
     learned = metrics.get("noise_learned")
     if learned:
         row["noise_learned"] = {k: learned.get(k) for k in ("model", "sigma_range", "sigma_bearing",
@@ -289,8 +290,9 @@ def run_all(items: list[Item], jobs: int, log=print) -> list[dict]:
         records[rec["key"]] = rec
         wall = rec.get("item_wall_s") if rec["status"] == "ok" else None
         log(f"[{len(records)}/{len(items)}] {rec['key']}: {rec['status']}"
-            + (f" ({wall:.1f} s)" if wall is not None else "") + (f": {rec['error']}" if rec["error"] else ""),
-            flush=True)
+            + (f" ({wall:.1f} s)" if wall is not None else "") + (f": {rec['error']}" if rec["error"] else "")
+            + (f"; {rec['internal_errors']} input(s) failed inside the estimator, dropped (metrics.json "
+               f"input_failures)" if rec.get("internal_errors") else ""), flush=True)
 
     def take_ready() -> list[Item]:
         """The waiting items whose needs are all done; those with a need that failed are skipped."""
