@@ -122,3 +122,23 @@ def test_a_replay_that_fails_is_dropped_and_counted_and_the_first_pass_goes_on(m
         assert slam.drops["warmup_replay_failed"] == 1 and len(fed) == 50
         assert not slam.learned_noise()["warmup_replayed"] and slam._warmup_log is None
         assert np.all(np.isfinite(slam.landmarks().positions)) and slam.step_count > 600
+
+
+def test_a_replay_that_fails_to_start_is_dropped_and_counted_and_the_first_pass_goes_on(monkeypatch):
+    """The restart raised out of the input that made the replay due; the rollback undid that input,
+    the replay was due again at the next one, and every later scan failed the same way."""
+    from online_em_slam.core.filter.warmup import WarmupReplay
+
+    scenario = simulate(ScenarioConfig(seed=2, n_steps=700, outlier_probability=0.1, **TRUTH))
+    attempts = []
+
+    def failing(self, estimator):
+        attempts.append(estimator.step_count)
+        raise TypeError("a failure restarting the estimator")
+    monkeypatch.setattr(WarmupReplay, "_restarted", failing)
+    slam = OnlineEMSlam(_learning(scenario), initial_pose=scenario.initial_pose, stamp=0.0)
+    for step in scenario.steps:
+        feed(slam, step)
+    assert len(attempts) == 1 and slam.drops["warmup_replay_failed"] == 1
+    assert not slam.learned_noise()["warmup_replayed"] and slam._warmup_log is None
+    assert np.all(np.isfinite(slam.landmarks().positions)) and slam.step_count > 600
