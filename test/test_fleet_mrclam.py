@@ -86,6 +86,30 @@ def test_run_fleet_on_two_synthetic_robots(two_robots, tmp_path, capsys):
     assert "--initial-pose must be auto or ground_truth" in capsys.readouterr().err
 
 
+def test_run_fleet_reports_a_robots_inputs_that_fail_inside_the_fleet(two_robots, tmp_path, capsys, monkeypatch):
+    """As a single robot's run: counted per robot, the first messages kept, a warning on stderr."""
+    from online_em_slam.core import FleetSlam
+    from online_em_slam.offline.cli import main
+    bag = tmp_path / "bag"
+    write_fleet_bag(load_fleet(two_robots, robots=(1, 2)), bag, progress=False)
+    original = FleetSlam.add_observations
+
+    def robot_two_fails(self, robot, stamp, observations):
+        if robot == 1:
+            raise RuntimeError("injected")
+        return original(self, robot, stamp, observations)
+    monkeypatch.setattr(FleetSlam, "add_observations", robot_two_fails)
+    out = tmp_path / "out"
+    assert main(["run", str(bag), "--fleet", "--params", str(PARAMS), "--output", str(out), "--seed", "0",
+                 "--particles", "20", "--no-plot"]) == 0
+    robots = json.loads((out / "metrics.json").read_text())["robots"]
+    failed = robots["robot2"]["runner_skipped"]["internal_error"]
+    assert failed > 0 and "internal_error" not in robots["robot1"]["runner_skipped"]
+    assert "RuntimeError('injected')" in robots["robot2"]["input_failures"][0]
+    err = capsys.readouterr().err
+    assert f"warning: {failed} input(s) failed inside the fleet (robot robot2)" in err and "robot1" not in err
+
+
 def test_run_fleet_refuses_a_single_robot_bag(two_robots, tmp_path, capsys):
     from online_em_slam.datasets.mrclam.convert import write_mrclam_bag
     from online_em_slam.offline.cli import main

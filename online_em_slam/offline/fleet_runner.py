@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import heapq
 import re
+import sys
 import time
 from collections import Counter
 from dataclasses import dataclass
@@ -34,11 +35,11 @@ import numpy as np
 from . import plots, report
 from ..bag.bagio import absolute_topic
 from ..core.config import SlamConfig
-from ..pipeline import OBSERVATIONS
+from ..pipeline import KIND_NAME, OBSERVATIONS
 from ..pipeline.fleet import FleetPipeline
 from .evaluation import DEFAULT_MATCH_GATE, timing_metrics
 from .frames import check_frame
-from .runner import BagInputs, RunResult, choose_initial_pose, read_inputs, truth_start
+from .runner import MAX_FAILURES_KEPT, BagInputs, RunResult, choose_initial_pose, read_inputs, truth_start
 from .tum import write_run_tum
 
 NAMESPACE = re.compile(r"^(/robot\d+)/")
@@ -97,11 +98,13 @@ class _Track:
     """One robot's record of the run: step durations, trajectory, observation messages."""
 
     def __init__(self) -> None:
-        self.durations, self.rows = [], []
+        self.durations, self.rows, self.failures = [], [], []
         self.first = self.last = None
         self.n_obs_msgs, self.known_ids = 0, False
 
     def applied(self, item, fed) -> None:
+        if fed.error is not None and len(self.failures) < MAX_FAILURES_KEPT:
+            self.failures.append(f"{KIND_NAME[item.kind]} at {item.stamp:.3f}: {fed.error!r}")
         if fed.report is not None:
             self.durations.append(fed.report.duration)
         if fed.trajectory_point is not None:
@@ -155,7 +158,7 @@ def run_fleet(inputs: FleetInputs, config: SlamConfig, settings, initial: list, 
         skipped.update({k: int(v) for k, v in refused[r].items() if v})
         result = RunResult("online_em_fleet", np.asarray(track.rows, dtype=float).reshape(-1, 4), landmarks,
                            track.durations, busy, track.duration, dict(fleet.robot(r).drops), skipped,
-                           track.n_obs_msgs, track.known_ids)
+                           track.n_obs_msgs, track.known_ids, track.failures)
         frame = check_frame(initial[r], truth_start(robot_inputs, config), match_gate)
         frames.append(frame)
         scored = report.evaluate(result, robot_inputs, config, match_gate, align, frame)
@@ -163,8 +166,8 @@ def run_fleet(inputs: FleetInputs, config: SlamConfig, settings, initial: list, 
             metrics.update({k: scored[k] for k in ("n_landmarks", "n_confirmed_landmarks", "landmarks")
                             if k in scored})
         per_robot[name] = {"initial_pose": initial[r].to_dict(), "n_observation_messages": track.n_obs_msgs,
-                           **{k: scored[k] for k in ("trajectory", "frame", "drops", "runner_skipped")
-                              if k in scored},
+                           **{k: scored[k] for k in ("trajectory", "frame", "drops", "runner_skipped",
+                                                     "input_failures") if k in scored},
                            "noise_learned": fleet.robot(r).learned_noise()}
         robot_dir = output / name
         robot_dir.mkdir(exist_ok=True)
@@ -221,6 +224,10 @@ def cmd_run_fleet(args, config: SlamConfig, settings, file_values: dict, extra: 
     metrics = run_fleet(inputs, config, settings, initial, Path(args.output), plot=not args.no_plot,
                         match_gate=args.match_gate, align=args.align, extra=extra, param_values=file_values)
     print(fleet_summary(metrics))
+    for name, robot in metrics["robots"].items():
+        warning = report.failure_warning(robot, f"the fleet (robot {name})")
+        if warning:
+            print(warning, file=sys.stderr, flush=True)
     print(f"wrote {args.output}/landmarks.csv, metrics.json, <robot>/trajectory.csv"
           + ("" if args.no_plot else ", map.png"))
     return 0

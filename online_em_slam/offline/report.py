@@ -144,15 +144,15 @@ def summary_line(metrics: dict) -> str:
     return " ".join(parts)
 
 
-def failure_warning(metrics: dict) -> str | None:
+def failure_warning(metrics: dict, who: str | None = None) -> str | None:
     """A line for stderr when inputs raised inside the estimator (each dropped, the estimate kept as
-    before it): how many, and the first one's message."""
+    before it): how many, and the first one's message.  ``who``: default the run's method."""
     count = metrics.get("runner_skipped", {}).get("internal_error", 0)
     if not count:
         return None
     first = metrics.get("input_failures", ["(message not kept)"])[0]
-    return (f"warning: {count} input(s) failed inside {metrics['method']} and were dropped, the estimate "
-            f"kept as before each; first: {first} (metrics.json: runner_skipped, input_failures)")
+    return (f"warning: {count} input(s) failed inside {who or metrics['method']} and were dropped, the "
+            f"estimate kept as before each; first: {first} (metrics.json: runner_skipped, input_failures)")
 
 
 def _fmt(value, digits: int = 3) -> str:
