@@ -235,6 +235,26 @@ def test_paired_differences_pair_run_method_noise_and_seed():
     assert "| 1_r1 | 2 | 0.110 -> 0.105 |" in text and "| 9_r4 | 1 | 0.200 -> 0.260 |" in text
     assert "B's shape below A's on 1 of 2 runs" in text
     assert "No work item is done in both files." in paired_markdown(a, [])
+    # 15/15 with none spurious on every paired seed: A has it on both runs, B not on 9_r4 (seed 0)
+    for row in a + b:
+        row.update(n_true=15, spurious=0)
+    b[2].update(matched=14, spurious=1)
+    assert "every landmark within 1 m and none spurious on every paired seed: 2 -> 1 of 2 runs" in paired_markdown(a, b)
+
+
+def test_compare_over_chosen_seeds(tmp_path):
+    """--seeds restricts --compare's pairs (a change made on seeds 0-1 confirmed on 2-4)."""
+    def rec(seed, shape):
+        return {"kind": "run", "status": "ok", "run": "1_r1", "method": "online_em", "noise": "params", "seed": seed,
+                "landmark_shape": shape, "landmark_rmse": shape, "trajectory_rmse": 0.5, "matched": 15,
+                "n_true": 15, "spurious": 0}
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    a.write_text(json.dumps({"runs": [rec(s, 0.10) for s in range(5)]}))
+    b.write_text(json.dumps({"runs": [rec(s, 0.05 if s < 2 else 0.11) for s in range(5)]}))
+    from online_em_slam.datasets.mrclam.paired import compare_files
+    assert "### online_em (params noise): 5 pairs" in compare_files(str(a), str(b))
+    held_out = compare_files(str(a), str(b), [2, 3, 4])
+    assert "3 pairs" in held_out and "paired difference +0.0100" in held_out
 
 
 def test_compare_prints_the_paired_differences_of_two_results_files(sweep, capsys):
