@@ -71,6 +71,20 @@ def test_validation_applies_the_metadata_ranges_with_their_open_bounds():
             _from_dotted(name, type(default)(info.lo))           # a closed bound is allowed
 
 
+def test_rho_outside_its_bound_names_the_noise_values_that_set_it():
+    """A camera's sigma_range 0.15 and sigma_bearing 0.05 put the default rho (0.01) outside
+    0.999 sigma_range sigma_bearing; the message said only "noise.rho = 0.01 is outside the
+    allowed range", a value the user never set."""
+    from online_em_slam.core.config import SlamConfig
+    with pytest.raises(ValueError, match=re.escape("noise.rho = 0.01 is outside the allowed range")) as error:
+        SlamConfig.from_dict({"noise": {"sigma_range": 0.15, "sigma_bearing": 0.05}})
+    assert "0.999 noise.sigma_range noise.sigma_bearing (0.15 x 0.05); set noise.rho with them" in str(error.value)
+    for rho in (float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="noise.rho"):
+            SlamConfig.from_dict({"noise": {"rho": rho}})
+    SlamConfig.from_dict({"noise": {"sigma_range": 0.15, "sigma_bearing": 0.05, "rho": 0.0}})
+
+
 def test_list_entries_are_checked_against_the_metadata_range():
     for name, default, info in _core_fields():
         if not isinstance(default, tuple) or info.lo is None:
