@@ -51,6 +51,11 @@ def _scores(pairs: list[tuple[dict, dict]], key: str) -> tuple[np.ndarray, np.nd
                  for i in (0, 1))
 
 
+def _complete(row: dict) -> bool:
+    """Every surveyed landmark within 1 m and none spurious, in the ground-truth frame."""
+    return row.get("matched") == row.get("n_true") and row.get("spurious") == 0
+
+
 def format_group(method: str, noise: str, pairs: list[tuple[dict, dict]]) -> list[str]:
     """One method's table: a row per run (its mean over seeds), then the paired differences."""
     lines = [f"### {method} ({noise} noise): {len(pairs)} pairs", "",
@@ -62,8 +67,7 @@ def format_group(method: str, noise: str, pairs: list[tuple[dict, dict]]) -> lis
     better, complete = 0, [0, 0]
     for run, run_pairs in by_run.items():
         for side in (0, 1):
-            complete[side] += all(pair[side].get("matched") == pair[side].get("n_true") and pair[side].get("spurious") == 0
-                                  for pair in run_pairs)
+            complete[side] += all(_complete(pair[side]) for pair in run_pairs)
         means = {key: [np.nanmean(v) for v in _scores(run_pairs, key)] for key, _, _ in SCORES}
         lines.append(f"| {run} | {len(run_pairs)} | " + " | ".join(
             f"{fmt.format(means[key][0])} -> {fmt.format(means[key][1])}" for key, _, fmt in SCORES) + " |")
