@@ -35,11 +35,11 @@ import numpy as np
 from . import plots, report
 from ..bag.bagio import absolute_topic
 from ..core.config import SlamConfig
-from ..pipeline import KIND_NAME, OBSERVATIONS
+from ..pipeline import OBSERVATIONS
 from ..pipeline.fleet import FleetPipeline
 from .evaluation import DEFAULT_MATCH_GATE, timing_metrics
 from .frames import check_frame
-from .runner import MAX_FAILURES_KEPT, BagInputs, RunResult, choose_initial_pose, read_inputs, truth_start
+from .runner import BagInputs, FailureLog, RunResult, choose_initial_pose, read_inputs, truth_start
 from .tum import write_run_tum
 
 NAMESPACE = re.compile(r"^(/robot\d+)/")
@@ -98,13 +98,12 @@ class _Track:
     """One robot's record of the run: step durations, trajectory, observation messages."""
 
     def __init__(self) -> None:
-        self.durations, self.rows, self.failures = [], [], []
+        self.durations, self.rows, self.failures = [], [], FailureLog()
         self.first = self.last = None
         self.n_obs_msgs, self.known_ids = 0, False
 
     def applied(self, item, fed) -> None:
-        if fed.error is not None and len(self.failures) < MAX_FAILURES_KEPT:
-            self.failures.append(f"{KIND_NAME[item.kind]} at {item.stamp:.3f}: {fed.error!r}")
+        self.failures.note(item, fed)
         if fed.report is not None:
             self.durations.append(fed.report.duration)
         if fed.trajectory_point is not None:

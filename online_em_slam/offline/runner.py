@@ -36,6 +36,14 @@ from .tum import write_run_tum
 # first few messages go into metrics.json's ``input_failures`` and the run's warning.
 MAX_FAILURES_KEPT = 5
 
+
+class FailureLog(list):
+    """The first MAX_FAILURES_KEPT inputs that raised inside the estimator, as messages."""
+
+    def note(self, item, fed) -> None:
+        if fed.error is not None and len(self) < MAX_FAILURES_KEPT:
+            self.append(f"{KIND_NAME[item.kind]} at {item.stamp:.3f}: {fed.error!r}")
+
 METHODS = ("online_em", "ekf_slam", "fastslam2", "marginal_slam")
 GT_POSITION_TOPIC = "/ground_truth/position"
 GT_POSE_TOPIC = "/ground_truth/pose"          # full base pose (motion capture), where a data set has it
@@ -356,11 +364,10 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
     bag releases the rest.  ``wall_time`` is the time spent in the pipeline and
     the estimator (reading the bag excluded).
     """
-    durations, rows, refused, failures = [], [], Counter(), []
+    durations, rows, refused, failures = [], [], Counter(), FailureLog()
 
     def record(item, fed) -> None:
-        if fed.error is not None and len(failures) < MAX_FAILURES_KEPT:
-            failures.append(f"{KIND_NAME[item.kind]} at {item.stamp:.3f}: {fed.error!r}")
+        failures.note(item, fed)
         if fed.report is not None:
             durations.append(fed.report.duration)
         if fed.trajectory_point is not None:
