@@ -17,3 +17,12 @@ def test_summary_and_comparison_report_shape_and_frame():
     text = report.comparison_markdown(rows, "bag", "params.yaml", 0, 100)
     assert "| beacon RMSE (m) | shape (m) | frame (m) |" in text
     assert "| ekf_slam | 15/15 | 1 | 0.250 | 0.150 | 0.200 |" in text
+
+
+def test_summary_names_the_map_scale_only_when_it_is_off():
+    metrics = _metrics("online_em")
+    metrics["landmarks"].update(map_scale=0.974, scaled_shape_error=0.05)
+    assert "frame 0.200), map scale 0.974 (shape without it 0.050);" in report.summary_line(metrics)
+    metrics["landmarks"]["map_scale"] = 1.003
+    assert "map scale" not in report.summary_line(metrics)
+    assert "map scale" not in report.summary_line(_metrics("online_em"))        # older metrics: no scale

@@ -8,6 +8,7 @@ import pytest
 
 from online_em_slam.offline.evaluation import (initial_pose_from_gps, interpolate_poses, interpolate_positions,
                                                landmark_metrics, landmark_metrics_by_id, landmark_pairs_by_id, map_error, map_error_split,
+                                               map_scale_split,
                                                rigid_alignment, rigid_fit_2d, sensor_points, timing_metrics,
                                                trajectory_metrics)
 
@@ -214,3 +215,31 @@ def test_by_id_every_pair_counts_however_far():
     assert extra.n_matched == 4 and extra.spurious == [99] and extra.rmse == pytest.approx(0.0)
     rotated = landmark_metrics_by_id(TRUTH @ np.array([[0.0, -1.0], [1.0, 0.0]]), ids, TRUTH, ids, gate=100.0)
     assert rotated.shape_error == pytest.approx(0.0, abs=1e-7) and rotated.frame_error == pytest.approx(rotated.rmse)
+
+
+def test_map_scale_reads_a_map_too_small_and_matches_a_brute_force_similarity_fit():
+    """A map 3 % too small, turned and moved, with noise: the similarity fit gives its scale and
+    the shape left without it, as scipy's least squares over (log scale, angle, c) does; a rigidly
+    moved map has scale 1 and the same shape either way; the metrics carry both."""
+    from scipy.optimize import least_squares
+
+    rng = np.random.default_rng(11)
+    truth = rng.uniform(-6, 6, (15, 2))
+    centre = truth.mean(axis=0)
+    estimated = (0.97 * (truth - centre)) @ _rotation(0.4).T + centre + [1.0, -2.0] + rng.normal(0, 0.02, (15, 2))
+    scale, scaled_shape = map_scale_split(estimated, truth)
+
+    def residuals(p):
+        return (np.exp(p[0]) * estimated @ _rotation(p[1]).T + p[2:] - truth).ravel()
+
+    fit = least_squares(residuals, x0=np.zeros(4), xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    assert scale == pytest.approx(np.exp(-fit.x[0]), rel=1e-8) and scale == pytest.approx(0.97, abs=0.005)
+    assert scaled_shape == pytest.approx(math.sqrt(np.mean(fit.fun ** 2 * 2)), rel=1e-7)
+    _, shape, _ = map_error_split(estimated, truth)
+    assert shape > 3 * scaled_shape                                  # the rigid fit counts the size as shape
+    moved = truth @ _rotation(-1.0).T + [3.0, 4.0]
+    assert map_scale_split(moved, truth) == pytest.approx((1.0, 0.0), abs=1e-9)
+    m = landmark_metrics_by_id(estimated, np.arange(15), truth, np.arange(15), gate=5.0)
+    assert (m.map_scale, m.scaled_shape_error) == pytest.approx((scale, scaled_shape))
+    assert landmark_metrics(centre + 0.98 * (truth - centre), truth, gate=1.0).map_scale == pytest.approx(0.98)
+    assert all(math.isnan(v) for v in map_scale_split([[1.0, 1.0]], [[0.0, 0.0]]))

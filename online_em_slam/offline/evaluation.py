@@ -9,7 +9,7 @@
   landmark of its id, and the RMSE, shape and frame cover every pair, however far
   (a landmark placed 5 m off counts 5 m, not as a missed one).
 * :func:`map_error_split` / :func:`map_error`: landmark RMSE split into *shape*
-  and *frame* (below).
+  and *frame*, and the map's scale (:mod:`.map_fit`).
 * :func:`trajectory_metrics`: position error of an estimated track against
   ground-truth positions.  The estimate is interpolated linearly at the
   ground-truth times (only inside the estimate's time span; ground-truth samples
@@ -31,6 +31,9 @@ import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+
+# The map fits live in map_fit; scripts and tests import them from here too.
+from .map_fit import fitted_onto, map_error_split, map_scale_split, rigid_fit_2d, rotate_points  # noqa: F401
 
 DEFAULT_MATCH_GATE = 2.0
 
@@ -78,6 +81,8 @@ class LandmarkMetrics:
     shape_error: float = math.nan     # RMSE after the best rigid fit (see map_error_split)
     frame_error: float = math.nan     # sqrt(rmse^2 - shape_error^2)
     n_matched_fitted: int = 0     # within the gate after the best rigid fit (n_matched: truth's frame)
+    map_scale: float = math.nan   # the map's size against the truth's (map_fit.map_scale_split)
+    scaled_shape_error: float = math.nan    # RMSE after the best similarity fit
     matches: list[LandmarkMatch] = field(default_factory=list)
     missed: list[int] = field(default_factory=list)       # indices into the true landmarks
     spurious: list[int] = field(default_factory=list)     # ids of the unmatched estimates
@@ -104,8 +109,9 @@ def landmark_metrics(estimated, truth, gate: float = DEFAULT_MATCH_GATE, estimat
     matched_true = {m.true_index for m in matches}
     matched_est = {m.estimate_index for m in matches}
     errors = np.array([m.error for m in matches])
-    _, shape, frame = map_error_split(est[[m.estimate_index for m in matches]],
-                                      tru[[m.true_index for m in matches]])
+    e, t = est[[m.estimate_index for m in matches]], tru[[m.true_index for m in matches]]
+    _, shape, frame = map_error_split(e, t)
+    scale, scaled_shape = map_scale_split(e, t)
     fitted = _matched_after_fit(est, tru, matches, gate)
     return LandmarkMetrics(
         n_true=len(tru), n_estimated=len(est), n_matched=len(matches),
@@ -114,6 +120,7 @@ def landmark_metrics(estimated, truth, gate: float = DEFAULT_MATCH_GATE, estimat
         mean_error=float(errors.mean()) if errors.size else math.nan,
         max_error=float(errors.max()) if errors.size else math.nan,
         gate=float(gate), shape_error=float(shape), frame_error=float(frame), n_matched_fitted=fitted,
+        map_scale=scale, scaled_shape_error=scaled_shape,
         matches=matches, missed=[i for i in range(len(tru)) if i not in matched_true],
         spurious=[int(ids[j]) for j in range(len(est)) if j not in matched_est])
 
@@ -164,8 +171,9 @@ def landmark_metrics_by_id(estimated, estimated_ids, truth, truth_ids, gate: flo
     errors = np.array([np.hypot(*(est[j] - tru[r])) for r, j in pairs])
     matches = sorted((LandmarkMatch(r, j, int(ids[j]), float(e)) for (r, j), e in zip(pairs, errors) if e <= gate),
                      key=lambda m: m.true_index)
-    rmse, shape, frame = map_error_split(est[[j for _, j in pairs]], tru[[r for r, _ in pairs]])
     e, t = est[[j for _, j in pairs]], tru[[r for r, _ in pairs]]
+    rmse, shape, frame = map_error_split(e, t)
+    scale, scaled_shape = map_scale_split(e, t)
     fitted = int(np.sum(np.hypot(*(fitted_onto(e, e, t) - t).T) <= gate)) if len(pairs) >= 2 else len(pairs)
     matched_true, matched_est = {m.true_index for m in matches}, {m.estimate_index for m in matches}
     return LandmarkMetrics(
@@ -174,67 +182,9 @@ def landmark_metrics_by_id(estimated, estimated_ids, truth, truth_ids, gate: flo
         mean_error=float(errors.mean()) if errors.size else math.nan,
         max_error=float(errors.max()) if errors.size else math.nan,
         gate=float(gate), shape_error=float(shape), frame_error=float(frame), n_matched_fitted=fitted,
+        map_scale=scale, scaled_shape_error=scaled_shape,
         matches=matches, missed=[i for i in range(len(tru)) if i not in matched_true],
         spurious=[int(ids[j]) for j in range(len(est)) if j not in matched_est], paired_by="id")
-
-
-# --------------------------------------------------------------------------- map shape and frame
-#
-# Landmark RMSE mixes two different failures: a map that is the right shape but
-# rotated / shifted as a whole (the gauge a SLAM run fixes only through its
-# initial pose and its drift: the *frame* error) and a deformed map (the
-# *shape* error).  Definitions, for n landmarks e_i estimated, t_i true, paired:
-#
-#     rmse^2  = 1/n sum |e_i - t_i|^2
-#     shape^2 = min over rotations R, translations c of 1/n sum |R e_i + c - t_i|^2
-#     frame^2 = rmse^2 - shape^2     (>= 0: R = I, c = 0 is a candidate)
-#
-# so rmse^2 = shape^2 + frame^2: frame is the part of the error that one rigid
-# motion of the whole map removes.  No scale: range measurements fix it.
-
-def rotate_points(points, angle) -> np.ndarray:
-    """Points (..., n, 2) rotated by ``angle`` (...,) about the origin."""
-    p = np.asarray(points, dtype=float)
-    c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
-    return np.stack([c * p[..., 0] - s * p[..., 1], s * p[..., 0] + c * p[..., 1]], axis=-1)
-
-
-def rigid_fit_2d(estimated, truth) -> tuple[np.ndarray, np.ndarray]:
-    """Best rigid motion of ``estimated`` onto ``truth`` (2-D Kabsch, closed form).
-
-    estimated, truth: (..., n, 2), rows paired; leading axes are a batch.
-    Returns the rotation angle (...,) and translation c (..., 2) minimising
-    sum_i |R(angle) e_i + c - t_i|^2: with centred points a_i, b_i the angle is
-    atan2(sum a_i x b_i, sum a_i . b_i) and c = mean(t) - R mean(e).
-    """
-    e, t = np.asarray(estimated, dtype=float), np.asarray(truth, dtype=float)
-    mu_e, mu_t = e.mean(axis=-2, keepdims=True), t.mean(axis=-2, keepdims=True)
-    a, b = e - mu_e, t - mu_t
-    angle = np.arctan2(np.sum(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0], axis=-1),
-                       np.sum(a * b, axis=(-2, -1)))
-    return angle, (mu_t - rotate_points(mu_e, angle))[..., 0, :]
-
-
-def fitted_onto(points, estimated, truth) -> np.ndarray:
-    """``points`` (n, 2) moved by the best rigid fit of ``estimated`` onto ``truth`` (m, 2), paired."""
-    angle, c = rigid_fit_2d(estimated, truth)
-    return rotate_points(np.asarray(points, dtype=float), angle) + c
-
-
-def map_error_split(estimated, truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Landmark RMSE, shape error and frame error (...,) of estimated vs true
-    landmarks (..., n, 2), rows paired (definitions above); NaN when n = 0."""
-    e, t = np.asarray(estimated, dtype=float), np.asarray(truth, dtype=float)
-    if e.shape[-2] == 0:
-        nan = np.full(e.shape[:-2], np.nan)
-        return nan, nan.copy(), nan.copy()
-    mse = np.mean(np.sum((e - t) ** 2, axis=-1), axis=-1)
-    angle, c = rigid_fit_2d(e, t)
-    # Residuals of the fitted map rather than the closed-form minimum
-    # |a|^2 + |b|^2 - 2 |(sum a.b, sum a x b)|, which cancels badly for large maps.
-    fitted = rotate_points(e, angle) + c[..., None, :]
-    shape_sq = np.minimum(np.mean(np.sum((fitted - t) ** 2, axis=-1), axis=-1), mse)  # <= mse up to round-off
-    return np.sqrt(mse), np.sqrt(shape_sq), np.sqrt(mse - shape_sq)
 
 
 def landmark_pairs_by_id(ids, positions, truth) -> tuple[np.ndarray, np.ndarray]:

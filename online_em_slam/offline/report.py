@@ -120,13 +120,21 @@ def json_dump(path, data) -> None:
 
 # --------------------------------------------------------------------------- summaries
 
+def _scale(lm: dict) -> str:
+    """", map scale S (shape without it X)" where the map's size is off by 0.5 % or more, else ""."""
+    scale = lm.get("map_scale")
+    if scale is None or not math.isfinite(scale) or abs(scale - 1.0) < 0.005:
+        return ""
+    return f", map scale {scale:.3f} (shape without it {_fmt(lm.get('scaled_shape_error'))})"
+
+
 def summary_line(metrics: dict) -> str:
     parts = [f"{metrics['method']}:"]
     lm = metrics.get("landmarks")
     if lm:
         parts.append(f"landmarks {lm['n_matched']}/{lm['n_true']} mapped, {lm['n_spurious']} spurious, "
                      f"RMSE {_fmt(lm['rmse'])} m (shape {_fmt(lm.get('shape_error'))}, "
-                     f"frame {_fmt(lm.get('frame_error'))});")
+                     f"frame {_fmt(lm.get('frame_error'))}){_scale(lm)};")
     tr = metrics.get("trajectory")
     if tr:
         parts.append(f"trajectory RMSE {_fmt(tr['rmse'])} m (median {_fmt(tr['median'])}, max {_fmt(tr['max'])});")
