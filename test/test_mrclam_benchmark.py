@@ -193,6 +193,10 @@ def test_better_noise_setting_and_summary():
     assert "FastSLAM 2.0: 1 of 1 runs" in text and "ratio (mean over runs): 2.75 over 1 runs" in text
     assert "online_em 15/15 ✓, 0 spurious ✓; fastslam2 15/15 ✓, 1 spurious ✗" in text
     assert "paired by seed (beyond two standard errors): ahead on 1, level on 0, behind on 0 runs" in text
+    assert "| online_em | 1 | 0.110 |" in text and text.count("| n/a | n/a |") == 3    # no scale in these records
+    records[0].update(landmark_scale=0.97, landmark_shape_scaled=0.04)
+    records[1].update(landmark_scale=0.99, landmark_shape_scaled=0.06)
+    assert "| 0.0 | 0.980 | 0.050 |" in results_markdown(records, meta)              # online EM's, over its seeds
 
 
 def test_paired_with_the_better_baseline_seed_by_seed():
