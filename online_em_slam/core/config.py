@@ -17,7 +17,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Iterator
 
-from .config_fields import ParamInfo, check_fields, check_length, param, param_info
+from .config_fields import ParamInfo, check_fields, check_length, check_range, param, param_info
 from .noise_learning_config import NoiseLearningConfig
 
 # The motion models, by name, and the input each integrates: a held control (speed,
@@ -191,12 +191,11 @@ class ObservationNoiseConfig:
             raise ValueError(f"{prefix}.mixture_weights and {prefix}.mixture_scales must have the same, non-zero length")
         check_fields(self, prefix)
         limit = 0.999 * self.sigma_range * self.sigma_bearing
-        if not (isinstance(self.rho, (int, float)) and math.isfinite(self.rho) and abs(self.rho) <= limit):
-            # Named with its bound's cause: lowering sigma_range or sigma_bearing alone can put the
-            # default rho (0.01) outside it, and the user never set rho.
-            raise ValueError(f"{prefix}.rho = {self.rho!r} is outside the allowed range [{-limit:g}, {limit:g}]: "
-                             f"|rho| <= 0.999 {prefix}.sigma_range {prefix}.sigma_bearing "
-                             f"({self.sigma_range:g} x {self.sigma_bearing:g}); set {prefix}.rho with them")
+        # Named with its bound's cause: lowering sigma_range or sigma_bearing alone can put the
+        # default rho (0.01) outside it, and the user never set rho.
+        check_range(f"{prefix}.rho", self.rho, -limit, limit,
+                    bound=f"|rho| <= 0.999 {prefix}.sigma_range {prefix}.sigma_bearing "
+                          f"({self.sigma_range:g} x {self.sigma_bearing:g}); set {prefix}.rho with them")
         if abs(math.fsum(float(w) for w in weights) - 1.0) > 1e-6:
             raise ValueError(f"{prefix}.mixture_weights = {self.mixture_weights} must be non-negative and sum to 1")
 

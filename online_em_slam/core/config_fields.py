@@ -68,7 +68,9 @@ def check_fields(section: Any, prefix: str, tighter: dict[str, dict[str, Any]] |
 
 
 def check_range(name: str, value: float, low: float, high: float,
-                 low_open: bool = False, high_open: bool = False) -> None:
+                 low_open: bool = False, high_open: bool = False, bound: str = "") -> None:
+    """``value`` a finite number within the range; ``bound`` (appended to the error) says what
+    sets a range that depends on other parameters."""
     try:
         number = float(value)
     except (TypeError, ValueError):
@@ -77,7 +79,8 @@ def check_range(name: str, value: float, low: float, high: float,
           and (number < high if high_open else number <= high))
     if not ok:
         brackets = ("(" if low_open else "[", ")" if high_open else "]")
-        raise ValueError(f"{name} = {value!r} is outside the allowed range {brackets[0]}{low}, {high}{brackets[1]}")
+        raise ValueError(f"{name} = {value!r} is outside the allowed range {brackets[0]}{low}, {high}{brackets[1]}"
+                         + (f": {bound}" if bound else ""))
 
 
 def check_length(name: str, value: Any, length: int | None = None, meaning: str = "") -> tuple:
