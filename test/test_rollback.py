@@ -1,6 +1,8 @@
 """One bad input must not stop the estimator (reliability, second round, item 1):
 per-observation stds are validated, and an input whose step raises is undone
 (pipeline/rollback.py) so that the run goes on exactly as without it."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,7 @@ from online_em_slam.core.filter.slam import OnlineEMSlam
 from online_em_slam.core.types import Observations
 from online_em_slam.pipeline import CONTROL, OBSERVATIONS, Feeder
 from online_em_slam.pipeline.inputs import Input
+from online_em_slam.pipeline.rollback import Rollback
 from online_em_slam.experiments.simulation import ScenarioConfig, simulate, slam_config_for
 
 
@@ -94,3 +97,54 @@ def test_a_step_that_raises_is_undone_exactly_and_counted(scenario):
     assert len(got) == len(expected)
     np.testing.assert_array_equal(np.asarray(got), np.asarray(expected))   # as if the input never came
     np.testing.assert_array_equal(failing.landmarks().positions, clean.landmarks().positions)
+
+
+class _Recorder:
+    """An estimator whose state is the stamps it took.  The calls are counted over every copy
+    (``calls``, outside the state, as memory is); the calls numbered in ``fail_at`` raise after
+    changing the state: a failure that depends on more than the inputs."""
+
+    calls, fail_at = 0, frozenset()
+
+    def __init__(self):
+        self.applied = []
+
+    def add_observations(self, stamp, _):
+        type(self).calls += 1
+        self.applied.append(stamp)
+        if type(self).calls in self.fail_at:
+            raise MemoryError("injected")
+
+    def pose(self):
+        return SimpleNamespace(mean=np.zeros(3), stamp=None)
+
+
+def test_an_input_that_raises_again_when_applied_again_ends_the_reapplication_and_is_counted(monkeypatch):
+    """Inputs 1-5 apply (calls 1-5); input 6 raises (call 6), so the copy taken before input 1
+    is put back and inputs 1-5 applied again (calls 7-11); input 3 raises this time (call 9):
+    the state is the copy with inputs 1-2, inputs 3-5 are lost and counted, and input 7 applies."""
+    monkeypatch.setattr(_Recorder, "fail_at", frozenset({6, 9}))
+    estimator = _Recorder()
+    feeder = Feeder(estimator, "control")
+    feeder.motion_seen = True
+    observations = Observations(np.ones(1), np.zeros(1))
+    fed = [feeder.apply(Input(float(k), OBSERVATIONS, payload=observations)) for k in range(1, 8)]
+    assert [f.error is None for f in fed] == [True] * 5 + [False, True]
+    assert estimator.applied == [1.0, 2.0, 7.0]
+    assert feeder.drops["internal_error"] == 1 and feeder.drops["reapply_failed"] == 3
+    feeder.rollback.restore()                          # the record since the copy matches the state
+    assert estimator.applied == [1.0, 2.0, 7.0] and feeder.rollback.take_lost() == 0
+
+
+def test_calls_that_took_long_are_not_applied_again_on_a_failure(monkeypatch):
+    """A call holding the warm-up replay can take seconds: a copy follows calls that took
+    MAX_REAPPLY_SECONDS in all, whatever the count of filter steps."""
+    from online_em_slam.pipeline import rollback as rollback_module
+
+    estimator = _Recorder()
+    rollback = Rollback(estimator, period=100)
+    rollback.call("add_observations", 1.0, None)
+    assert len(rollback._since) == 1
+    monkeypatch.setattr(rollback_module, "MAX_REAPPLY_SECONDS", 0.0)
+    rollback.call("add_observations", 2.0, None)
+    assert rollback._since == [] and rollback._saved["applied"] == [1.0, 2.0]

@@ -41,7 +41,8 @@ INPUTS_SILENT_AT_END = ("/control", "/landmark_observations", "/odom")
 PRE_BUFFER_DROPS = ("empty_cloud", "malformed_cloud", "non_finite_odometry", "non_finite_control")
 # Drops that would mean an input was lost or unused (must be zero in the demo).
 INPUT_LOSS_DROPS = ("malformed_cloud", "non_finite_odometry", "non_finite_control", "non_finite_stamp",
-                    "out_of_order", "zero_time_step", "no_motion_input", "paused", "internal_error")
+                    "out_of_order", "zero_time_step", "no_motion_input", "paused", "internal_error",
+                    "reapply_failed")
 
 
 def find_params(name: str = "car_park.yaml") -> Path:

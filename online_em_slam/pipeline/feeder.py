@@ -13,7 +13,9 @@ are comparable point for point.
 
 An input whose application raises is dropped (``internal_error``, its error in
 ``Fed.error``) and leaves no trace: :class:`~.rollback.Rollback` restores the
-estimator to its state before it, so one bad input never stops the estimator.
+estimator to its state before it, so one bad input never stops the estimator.  Inputs it
+applied again and that raised then (a failure beyond the inputs) are lost and counted
+(``reapply_failed``).
 """
 from __future__ import annotations
 
@@ -68,6 +70,9 @@ class Feeder:
                 return self._observations(item, use_observations)
         except Exception as error:  # noqa: BLE001 - one bad input must never stop the estimator
             self.drops["internal_error"] += 1
+            lost = self.rollback.take_lost()
+            if lost:
+                self.drops["reapply_failed"] += lost
             return Fed(error=error)
         return Fed()                 # odometry while control drives the motion: pose bookkeeping only
 

@@ -93,6 +93,9 @@ class RobotRollback:
     def restore(self) -> None:
         self.shared.restore()
 
+    def take_lost(self) -> int:
+        return self.shared.take_lost()
+
 
 class FleetPipeline:
     """Every robot's inputs into ``fleet``: ``push(robot, kind, stamp, payload, wall)``; ``on_applied(robot,
