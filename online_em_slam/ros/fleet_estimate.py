@@ -49,6 +49,10 @@ class FleetEstimate:
         """Another node's segment message, through the fleet's rollback (a restore re-applies it)."""
         self.feeds[0].shared.call("fold_remote", message)
 
+    def take_lost(self) -> int:
+        """Inputs the fleet's rollback lost applying them again after a failure (pipeline/rollback.py)."""
+        return self.feeds[0].shared.take_lost()
+
     @property
     def config(self):
         return self.fleet.config

@@ -84,6 +84,9 @@ class SegmentLink:
                 estimate.fold_remote(message)
             except Exception as error:  # noqa: BLE001 - the rollback undid it; one message must not stop the node
                 self._drop("segment_failed", f"folding {envelope.robot}'s segment failed: {error!r}")
+                lost = estimate.take_lost()
+                if lost:
+                    node.drops["reapply_failed"] += lost
                 return
             estimate.received[envelope.robot] = (envelope.session, message.sequence)
             node.outputs.map_dirty = True
