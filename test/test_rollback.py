@@ -148,3 +148,13 @@ def test_calls_that_took_long_are_not_applied_again_on_a_failure(monkeypatch):
     monkeypatch.setattr(rollback_module, "MAX_REAPPLY_SECONDS", 0.0)
     rollback.call("add_observations", 2.0, None)
     assert rollback._since == [] and rollback._saved["applied"] == [1.0, 2.0]
+
+
+def test_the_fleet_nodes_estimate_hands_on_what_its_shared_rollback_lost(scenario):
+    """ros/segment_link.py counts what a failed segment fold's restore lost through this."""
+    from online_em_slam.ros.fleet_estimate import FleetEstimate
+
+    config = slam_config_for(scenario, num_particles=10)
+    estimate = FleetEstimate(config, [scenario.initial_pose] * 2, ("robot1", "robot2"), local_robot="robot1")
+    estimate.feeds[1].shared.lost = 2            # every robot's feed shares the one rollback
+    assert estimate.take_lost() == 2 and estimate.take_lost() == 0
