@@ -24,6 +24,7 @@ def test_a_one_robot_fleet_replays_its_warmup_as_the_single_robot_does():
     fleet = _run_fleet([scenario], config)
     assert single.learned_noise()["warmup_replayed"] and fleet.robot(0).learned_noise()["warmup_replayed"]
     assert fleet._warmup_log is None and fleet.drops == single.drops
+    assert single.learned_noise()["replays"] == fleet.robot(0).learned_noise()["replays"] == 1
     a, b = single.landmarks(), fleet.landmarks()
     for name in ("ids", "positions", "covariances", "n_obs", "confirmed"):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name

@@ -46,6 +46,13 @@ class NoiseLearningConfig:
         learned quantity is in use, the estimator restarts at its initial pose
         and filters the warm-up's inputs (at most ``max_replay_inputs``) again
         with the learned noise as the starting values, once.
+    replay_growth: the values in use while the later inputs were filtered
+        keep moving after the warm-up replay (a motion gain decided then at a
+        transient of its statistic, MRCLAM), and the map keeps what was filtered
+        under them; the kept inputs are filtered again from the start, under
+        the values learned from all of them, each time they have grown by this
+        factor: batch EM's E-step again at geometrically spaced times, g / (g - 1)
+        passes over the inputs in all (5 at 1.25, config/mrclam.yaml).
     replay_on_calibration: with motion_gains learned, a gain that comes into
         use before that (the calibration of the motion input) has the inputs so
         far filtered again from the start with it, once: a heading error made
@@ -97,6 +104,10 @@ class NoiseLearningConfig:
     replay_on_calibration: bool = param(True, doc="With motion_gains learned: once a motion gain comes into "
                                         "use before the warm-up replay, filter the inputs so far again from the "
                                         "start with it (once; the pose may jump then).")
+    replay_growth: float = param(0.0, 0.0, 100.0, doc="After the warm-up replay, filter the kept inputs "
+                                 "again from the start each time they have grown by this factor since the last "
+                                 "replay started (0: never; otherwise above 1; g / (g - 1) passes over the inputs "
+                                 "in all). One robot; a fleet replays its warm-up once.")
     max_replay_inputs: int = param(100000, 0, 10 ** 7, doc="Inputs kept for the warm-up replay (per robot "
                                    "in fleet mode); a longer warm-up is not replayed.")
     motion_window: int = param(10, 1, 1000, doc="Filter steps over which the pose is predicted open loop for "
@@ -144,6 +155,8 @@ class NoiseLearningConfig:
             raise ValueError(f"{prefix}.learn = {self.learn!r} must be a list of names of {', '.join(LEARNABLE_NOISE)}")
         if "motion_gain_in_place" in self.learn and "motion_gains" not in self.learn:
             raise ValueError(f"{prefix}.learn: motion_gain_in_place is a third motion gain, learned with motion_gains")
+        if 0.0 < self.replay_growth <= 1.0:
+            raise ValueError(f"{prefix}.replay_growth = {self.replay_growth} must be 0 (off) or above 1")
         if "serial_length" in self.learn and "serial_correlation" not in self.learn:
             raise ValueError(f"{prefix}.learn: serial_length is the serial correlation's decay, learned with "
                              "serial_correlation")

@@ -99,7 +99,7 @@ class OnlineEMSlam:
         # The warm-up's inputs, filtered again once the learned noise is in use (warmup.py).
         replay = cfg.noise_learning.replay_warmup and bool(self._noise.learn)
         self._warmup = WarmupReplay(replay, cfg.noise_learning.max_replay_inputs, (pose.copy(), stamp),
-                                    cfg.noise_learning.replay_on_calibration)
+                                    cfg.noise_learning.replay_on_calibration, cfg.noise_learning.replay_growth)
 
     def start_new_pass(self, initial_pose=None, stamp: float | None = None) -> None:
         """Prepare another pass over the same data: batch EM by repeated passes.
@@ -430,7 +430,7 @@ class OnlineEMSlam:
     def learned_noise(self) -> dict:
         """Noise values learned online (em/noise/learner.py): estimates, counts, and whether in use."""
         return {**self._noise.learned(), "warmup_replayed": self._warmup.replayed,
-                "calibration_replayed": self._warmup.calibrated}
+                "calibration_replayed": self._warmup.calibrated, "replays": self._warmup.replays}
 
     def learned_noise_parameters(self) -> dict:
         """The noise in use as flat node parameters (noise.*, motion.* stds), for a parameter file."""

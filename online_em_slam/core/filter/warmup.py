@@ -13,6 +13,10 @@ then, and the kept inputs go on growing for the warm-up replay.  And once after 
 serial correlation's decay is learned and was not known yet when the warm-up replay started
 (``NoiseLearner.serial_known``): a few early pairs of sightings fix it poorly, and the early map,
 filtered under it, would keep their weights (docs/METHOD.md, "A correlation that decays").
+With ``growth`` g > 1 (``replay_growth``) the inputs are kept on after that and filtered again
+from the start each time they have grown g-fold since the last replay started: values that came
+into use at a transient (a motion gain decided just before the warm-up replay) leave their mark
+on the map only until the next replay (docs/METHOD.md, "Replays as the inputs grow").
 A fleet (core/fleet/warmup.py) replays its warm-up once.
 
 Offline the new estimator is fed everything at once, inside the input that made the
@@ -50,7 +54,7 @@ class WarmupReplay:
     ``replaying``: the new estimator while it catches up (None before and after).
     """
 
-    def __init__(self, keep: bool, max_inputs: int, start, calibrate: bool = False) -> None:
+    def __init__(self, keep: bool, max_inputs: int, start, calibrate: bool = False, growth: float = 0.0) -> None:
         self.inputs: list | None = [] if keep else None
         self.max_inputs = max_inputs
         self.start = start              # where the estimator restarts (see _restarted)
@@ -62,6 +66,8 @@ class WarmupReplay:
         self.replaying = None
         self._fed = 0                   # kept inputs fed to ``replaying``
         self._warmup_length = 0         # the inputs up to the one that made the replay due
+        self.growth = growth            # replay again once the kept inputs grew by this factor (> 1)
+        self.replays = 0                # replays taken over so far, of every kind (learned_noise reports it)
 
     def record(self, method: str, stamp: float, value) -> None:
         """One input as the estimator received it (its method name, stamp and value)."""
@@ -80,11 +86,14 @@ class WarmupReplay:
 
     def due(self, learner) -> bool:
         """Inputs are kept, no replay runs, and every quantity the noise learner learns is in use,
-        or (the calibration replay, once) a learned motion gain is."""
+        or (the calibration replay, once) a learned motion gain is; after the warm-up replay, the
+        serial decay is known (once) or the inputs have grown ``growth``-fold since the last."""
         if self.inputs is None or self.replaying is not None:
             return False
-        if self.replayed:               # kept only while the serial decay's replay is pending
-            return learner.serial_known
+        if self.replayed:               # kept for the serial decay's replay, or for growth
+            if self._serial_pending:    # set when the warm-up replay started, cleared by the next
+                return learner.serial_known
+            return self.growth > 1.0 and len(self.inputs) >= self.growth * self._warmup_length
         return learner.all_in_use or (self.calibrate and not self.calibrated and learner.calibration_in_use)
 
     def replay(self, estimator, in_slices: bool = False) -> None:
@@ -167,12 +176,14 @@ class WarmupReplay:
         estimator.__dict__.clear()
         estimator.__dict__.update(replayed.__dict__)
         estimator.drops = estimator._input.drops = drops   # the motion input counts into it too
+        self.replays += 1
         if self._calibrating:           # the warm-up replay is still to come: the kept inputs go on
             self.replaying, self._calibrating, self.calibrated = None, False, True
             estimator._warmup = self
             return
-        if self._serial_pending:        # once more when the decay is known: the kept inputs go on
+        if self._serial_pending or self.growth > 1.0:   # once more: the kept inputs go on
             self.replaying, self.replayed = None, True
             estimator._warmup = self
             return
         estimator._warmup.replayed, estimator._warmup.calibrated = True, self.calibrated
+        estimator._warmup.replays = self.replays

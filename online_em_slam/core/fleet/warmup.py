@@ -58,5 +58,5 @@ class FleetWarmupReplay(WarmupReplay):
         fleet.__dict__.update(replayed.__dict__)
         for robot, counts in zip(fleet._robots, drops):
             robot.drops = robot._input.drops = counts       # the motion input counts into it too
-            robot._warmup.replayed = True          # reported per robot (learned_noise)
-        fleet._warmup.replayed = True
+            robot._warmup.replayed, robot._warmup.replays = True, 1   # reported per robot (learned_noise)
+        fleet._warmup.replayed, fleet._warmup.replays = True, 1
