@@ -276,6 +276,11 @@ class EMConfig:
     block_growth: float = param(1.1, 0.0, 3.0, doc="Block Online EM: block k has length initial * k^growth.")
     inflate_with_map_uncertainty: bool = param(False, doc="Add the landmark covariance to the innovation "
                                                "covariance.")
+    responsibilities_with_map_uncertainty: bool = param(
+        True, doc="Observed M-step, Student-t or mixture noise: the noise law's responsibilities (an "
+        "observation's weight) from R + H Sigma H^T, Sigma the landmark's covariance given the robot's pose "
+        "(the map's frame since the robot last saw it included), so that an observation closing a loop is "
+        "not taken for an outlier.")
     m_step: str = param("observed", choices=M_STEPS, doc="complete (seed: A^-1 b per landmark) or observed "
                         "(Newton step with the observed information: poses integrated out of the joint system).")
     segment_length: int = param(10, 1, 100000, doc="Observed M-step: filter steps per segment whose poses are "

@@ -219,6 +219,11 @@ class ObservedInformationEM:
         inverse, det = inv_det_2x2(self.information[rows])
         return np.where((det > 1e-300)[:, None, None], inverse, 0.0)
 
+    def covariances_given_pose(self, rows: np.ndarray, robot: int = 0) -> np.ndarray:
+        """(P, 2, 2) the landmarks' covariances given the robot's key pose, the map's frame since
+        the robot last saw them included; NaN for those not in the stored Gaussian yet."""
+        return self.system.covariances_given_key(rows, robot)
+
     def map_covariances(self) -> np.ndarray:
         """Marginals of the joint system (they include the frame's uncertainty); the
         per-landmark term for landmarks that have not reached it yet."""

@@ -33,7 +33,7 @@ from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 from ..config import SensorConfig
 from ..models.observation import inv_det_2x2
-from .segment_factors import MIN_PRIOR_STD, POSE_DIM, SegmentFactors, SegmentSystem
+from .segment_factors import MIN_PRIOR_STD, POSE_DIM, SegmentFactors, SegmentSystem, given_key
 
 UNSTORED = -1
 # The rank-|T| update runs over blocks of rows: at M = 5000 a whole temporary would be 800 MB.
@@ -248,6 +248,20 @@ class ObservedCovariance(SegmentFactors):
         stored = self.slot != UNSTORED
         pairs = self.slot[stored][:, None] + np.arange(2)
         out[stored] = self.cov[pairs[:, :, None], pairs[:, None, :]]
+        return out
+
+    def covariances_given_key(self, rows: np.ndarray, robot: int = 0) -> np.ndarray:
+        """(P, 2, 2) each landmark of ``rows``' covariance given ``robot``'s key pose; NaN where not
+        yet stored."""
+        out = np.full((len(rows), 2, 2), np.nan)
+        slots = self.slot[rows]
+        stored = slots != UNSTORED
+        if stored.any():
+            key = np.arange(POSE_DIM * robot, POSE_DIM * (robot + 1))
+            pairs = slots[stored][:, None] + np.arange(2)
+            c = self.cov
+            out[stored] = given_key(c[np.ix_(key, key)], c[pairs[:, :, None], key],
+                                    c[pairs[:, :, None], pairs[:, None, :]])
         return out
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
 from ..config import SensorConfig
-from .segment_factors import MIN_PRIOR_STD, POSE_DIM, SegmentFactors, SegmentSystem, marginalize
+from .segment_factors import MIN_PRIOR_STD, POSE_DIM, SegmentFactors, SegmentSystem, given_key, marginalize
 
 
 class ObservedInformation(SegmentFactors):
@@ -36,6 +36,9 @@ class ObservedInformation(SegmentFactors):
             self.info[self._key(r), self._key(r)] = np.diag(1.0 / std ** 2)
         self.vector = np.zeros(self.key_dim)                                    # (3R + 2M,)
         self._covariance_cache: np.ndarray | None = None
+        # The last solve's Cholesky factor, until the system changes but for pruning, which keeps
+        # the others' Gaussian: _solved_rows are the landmark rows of the factor (covariances_given_key).
+        self._solved, self._solved_rows = None, np.zeros(0, dtype=np.int64)
 
     # The system grows by zero rows for each new landmark.  Growing is a copy of the whole
     # matrix, O(M^2), and a map that grows by two landmarks a step paid it at every step (27 %
@@ -89,6 +92,7 @@ class ObservedInformation(SegmentFactors):
         self._keep_landmark_rows(keep)
         if keep.all():
             return
+        self._solved_rows = self._solved_rows[keep[:self._solved_rows.size]]
         lm = np.arange(self.key_dim, self.info.shape[0]).reshape(-1, 2)
         kept = np.concatenate([np.arange(self.key_dim), lm[keep].ravel()])
         dropped = lm[~keep].ravel()
@@ -117,15 +121,16 @@ class ObservedInformation(SegmentFactors):
         else:
             self.info, self.vector = info, vector
         self._key_point_set(segment.pose, robot)
-        self._covariance_cache = None
+        self._covariance_cache = self._solved = None
 
     # ------------------------------------------------------------ solve
     def solve(self) -> tuple[np.ndarray, np.ndarray] | None:
         """Minimiser of the stored quadratic: (theta (M, 2), dx_keys (3R,): robot r's key
         correction at [3r, 3r + 3)), None if not positive definite."""
-        factor = self._factor()
+        factor = self._solved = self._factor()
         if factor is None:
             return None
+        self._solved_rows = np.arange(self.n_landmarks)
         z = cho_solve(factor, self.vector)
         if not np.all(np.isfinite(z)):
             return None
@@ -155,14 +160,14 @@ class ObservedInformation(SegmentFactors):
         self.vector = np.zeros(n)
         self.vector[rest] = marginal_vector
         self._key_point_set(pose, robot)
-        self._covariance_cache = None
+        self._covariance_cache = self._solved = None
 
     def add_prior(self, rows: np.ndarray, theta: np.ndarray, A: np.ndarray) -> None:
         """Independent priors N(theta, A^-1) on landmarks ``rows`` (a loaded map): A (k, 2, 2)."""
         lm = self.key_dim + 2 * np.asarray(rows)[:, None] + np.arange(2)
         self.info[lm[:, :, None], lm[:, None, :]] += A
         self.vector[lm] += np.einsum("mij,mj->mi", A, theta)
-        self._covariance_cache = None
+        self._covariance_cache = self._solved = None
 
     def landmark_covariances(self) -> np.ndarray | None:
         """Marginal covariances (M, 2, 2) of the map: diagonal blocks of info^-1."""
@@ -174,6 +179,24 @@ class ObservedInformation(SegmentFactors):
             lm = np.arange(self.key_dim, self.info.shape[0]).reshape(-1, 2)
             self._covariance_cache = inverse[lm[:, :, None], lm[:, None, :]]
         return self._covariance_cache
+
+    def covariances_given_key(self, rows: np.ndarray, robot: int = 0) -> np.ndarray:
+        """(P, 2, 2) each landmark of ``rows``' covariance given ``robot``'s key pose, from the last
+        solve's factor; NaN for landmarks that came after it (and for all when it failed)."""
+        out = np.full((len(rows), 2, 2), np.nan)
+        rows = np.asarray(rows)
+        known = (rows < self._solved_rows.size) if self._solved is not None else np.zeros(rows.size, dtype=bool)
+        if known.any():
+            key, n = self._key(robot), self._solved[0].shape[0]
+            lm = self.key_dim + 2 * self._solved_rows[rows[known]][:, None] + np.arange(2)
+            idx = np.concatenate([np.arange(key.start, key.stop), lm.ravel()])
+            unit = np.zeros((n, idx.size))
+            unit[idx, np.arange(idx.size)] = 1.0
+            S = cho_solve(self._solved, unit)[idx]
+            pairs = POSE_DIM + np.arange(2 * known.sum()).reshape(-1, 2)
+            out[known] = given_key(S[:POSE_DIM, :POSE_DIM], S[pairs, :POSE_DIM],
+                                   S[pairs[:, :, None], pairs[:, None, :]])
+        return out
 
     def _factor(self):
         try:

@@ -351,3 +351,11 @@ def marginalize(info: np.ndarray, vector: np.ndarray, kept: np.ndarray, eliminat
     symmetric += schur
     symmetric *= 0.5
     return symmetric, vector[kept] - L_ek.T @ X[:, -1]
+
+
+def given_key(S_kk: np.ndarray, S_lk: np.ndarray, S_ll: np.ndarray) -> np.ndarray:
+    """Landmarks' covariances given a key pose, S_ll - S_lk S_kk^-1 S_kl (P, 2, 2), from the joint
+    Gaussian's blocks S_kk (3, 3), S_lk (P, 2, 3), S_ll (P, 2, 2)."""
+    S_lk_over_S_kk = np.linalg.solve(S_kk, S_lk.reshape(-1, POSE_DIM).T).T.reshape(S_lk.shape)    # one solve
+    out = S_ll - S_lk_over_S_kk @ np.swapaxes(S_lk, -1, -2)
+    return 0.5 * (out + np.swapaxes(out, -1, -2))

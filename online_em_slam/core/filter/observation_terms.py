@@ -37,19 +37,26 @@ class ObservationTerms:
 
 def observation_terms(y: np.ndarray, R: np.ndarray, theta_bar: np.ndarray, sensor: np.ndarray,
                       noise: ObservationNoiseConfig, weighting: np.ndarray,
-                      landmark_cov: np.ndarray | None) -> ObservationTerms:
+                      landmark_cov: np.ndarray | None, given_pose_cov: np.ndarray | None = None) -> ObservationTerms:
     """The terms of observations ``y`` (P, 2) with noise ``R`` (P, 2, 2) of landmarks at
     ``theta_bar`` (P, 2), seen from the particles' sensor poses ``sensor`` (N, 3).
 
     The log-likelihood log g(y | xi^i, theta) sums over the landmarks seen often enough
     to weight (``weighting`` (P,)); ``landmark_cov`` (P, 2, 2), when given, is the
     landmarks' uncertainty, whose H Sigma_k H^T the innovation covariance then carries too.
+    ``given_pose_cov`` (P, 2, 2), when given, is each landmark's covariance given the robot's
+    pose (NaN: none yet): the noise law's responsibilities are then those of an innovation
+    with covariance R + H Sigma H^T (docs/METHOD.md, "Responsibilities and the map's uncertainty").
     """
     nu = innovation(y, predict_observation(sensor[:, None, :], theta_bar[None]))       # (N, P, 2)
     H = landmark_jacobian(sensor[:, None, :], theta_bar[None])                      # (N, P, 2, 2)
     # R (P, 2, 2) broadcasts over the particles: the noise law's d2 and log det take its
     # inverse once per observation, not once per particle and observation.
     loglik, resp = noise_loglik(noise, nu, R)
+    if given_pose_cov is not None and noise.model != "gaussian":
+        known = np.isfinite(given_pose_cov[:, 0, 0])
+        Sigma = np.where(known[:, None, None], given_pose_cov, 0.0)
+        resp = noise_loglik(noise, nu, R + H @ Sigma[None] @ np.swapaxes(H, -1, -2))[1]
     if landmark_cov is not None and weighting.any():
         loglik, _ = noise_loglik(noise, nu, R + H @ landmark_cov[None] @ np.swapaxes(H, -1, -2))
     log_likelihood = (np.where(weighting[None, :], loglik, 0.0).sum(axis=1) if weighting.any()

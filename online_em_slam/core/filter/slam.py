@@ -1,14 +1,12 @@
 """Particle online EM SLAM: the public estimator (docs/METHOD.md).
 
-The pose is the hidden state of an HMM and is tracked by a particle filter;
-the landmark map theta is a parameter, updated by an M-step piece
-(em/complete.py: the seed's complete-data M-step; em/observed.py: the Newton
-step with the observed information).  One *filter step* happens per
-observation scan (and, without observations, every
-``motion.max_prediction_interval`` seconds); the controls or odometry
-increments in between are compounded into the Gaussian transition (T) of
-``models/motion.py``, so the O(N^2) smoother runs once per scan, not once per 40 Hz
-control message.
+The pose is the hidden state of an HMM and is tracked by a particle filter; the landmark map
+theta is a parameter, updated by an M-step piece (em/complete.py: the seed's complete-data
+M-step; em/observed.py: the Newton step with the observed information).  One *filter step*
+happens per observation scan (and, without observations, every ``motion.max_prediction_interval``
+seconds); the controls or odometry increments in between are compounded into the Gaussian
+transition (T) of ``models/motion.py``, so the O(N^2) smoother runs once per scan, not once per
+40 Hz control message.
 """
 from __future__ import annotations
 
@@ -325,8 +323,10 @@ class OnlineEMSlam:
         R, c = self._serial.scan_noise(in_use, noise, obs, obs_idx, ids, sensor, prior_weights)
         weighting = self._map.n_obs[rows] >= cfg.association.min_observations_for_weighting
         inflate = cfg.em.inflate_with_map_uncertainty and weighting.any()
+        given = getattr(self._m_step, "covariances_given_pose", None)      # the observed M-step's
+        widen = given and cfg.em.responsibilities_with_map_uncertainty and noise.model != "gaussian"
         terms = observation_terms(y, R, self._map.theta[rows], sensor, noise, weighting,
-                                  self._m_step.covariances(rows) if inflate else None)
+                                  self._m_step.covariances(rows) if inflate else None, given(rows) if widen else None)
         terms.serial = c
         if cfg.filter.serial_likelihood == "ar1":       # the weights under AR(1) errors (serial_errors.py)
             self._serial.last.weigh(terms, self._step, ids, scan_noise(in_use, obs, obs_idx), ancestors, in_use,

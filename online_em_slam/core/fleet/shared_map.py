@@ -69,6 +69,9 @@ class RobotMStep:
     def covariances(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
         return self.shared.covariances(rows)
 
+    def covariances_given_pose(self, rows: np.ndarray) -> np.ndarray:
+        return self.shared.covariances_given_pose(rows, self.robot)
+
     def map_covariances(self) -> np.ndarray:
         return self.shared.map_covariances()
 
