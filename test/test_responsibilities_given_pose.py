@@ -85,3 +85,26 @@ def test_gaussian_noise_is_left_alone():
     plain = observation_terms(y, R, theta, sensor, noise, np.ones(1, dtype=bool), None)
     widened = observation_terms(y, R, theta, sensor, noise, np.ones(1, dtype=bool), None, np.array([np.eye(2)]))
     assert np.array_equal(widened.precision, plain.precision)
+
+
+def test_a_run_with_it_on_maps_the_same_in_both_forms_of_the_stored_gaussian():
+    """Over a simulated run with outliers under Student-t noise, the covariance form and the
+    information form (answering from its last solve's factor) give the same responsibilities."""
+    from dataclasses import replace
+
+    from online_em_slam.core import OnlineEMSlam
+    from online_em_slam.experiments.simulation import ScenarioConfig, feed, simulate, slam_config_for
+
+    scenario = simulate(ScenarioConfig(seed=4, n_steps=300, outlier_probability=0.1))
+    maps = []
+    for form in ("covariance", "information"):
+        config = slam_config_for(scenario, num_particles=30)
+        config = replace(config, noise=replace(config.noise, model="student_t", dof=4.0),
+                         em=replace(config.em, responsibilities_with_map_uncertainty=True, map_form=form))
+        slam = OnlineEMSlam(config, initial_pose=scenario.initial_pose)
+        for step in scenario.steps:
+            feed(slam, step)
+        maps.append(slam.landmarks())
+    (a, b) = maps
+    assert np.array_equal(a.ids, b.ids) and len(a.ids) >= 10
+    assert np.allclose(a.positions, b.positions, atol=1e-6)

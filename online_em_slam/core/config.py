@@ -277,10 +277,10 @@ class EMConfig:
     inflate_with_map_uncertainty: bool = param(False, doc="Add the landmark covariance to the innovation "
                                                "covariance.")
     responsibilities_with_map_uncertainty: bool = param(
-        True, doc="Observed M-step, Student-t or mixture noise: the noise law's responsibilities (an "
+        False, doc="Observed M-step, Student-t or mixture noise: the noise law's responsibilities (an "
         "observation's weight) from R + H Sigma H^T, Sigma the landmark's covariance given the robot's pose "
         "(the map's frame since the robot last saw it included), so that an observation closing a loop is "
-        "not taken for an outlier.")
+        "not taken for an outlier; it also takes in outliers among a landmark's first sightings.")
     m_step: str = param("observed", choices=M_STEPS, doc="complete (seed: A^-1 b per landmark) or observed "
                         "(Newton step with the observed information: poses integrated out of the joint system).")
     segment_length: int = param(10, 1, 100000, doc="Observed M-step: filter steps per segment whose poses are "
