@@ -257,7 +257,7 @@ class ObservedCovariance(SegmentFactors):
         slots = self.slot[rows]
         stored = slots != UNSTORED
         if stored.any():
-            key = np.arange(POSE_DIM * robot, POSE_DIM * (robot + 1))
+            key = np.arange(self._key(robot).start, self._key(robot).stop)
             pairs = slots[stored][:, None] + np.arange(2)
             c = self.cov
             out[stored] = given_key(c[np.ix_(key, key)], c[pairs[:, :, None], key],

@@ -53,7 +53,7 @@ def observation_terms(y: np.ndarray, R: np.ndarray, theta_bar: np.ndarray, senso
     # R (P, 2, 2) broadcasts over the particles: the noise law's d2 and log det take its
     # inverse once per observation, not once per particle and observation.
     loglik, resp = noise_loglik(noise, nu, R)
-    if given_pose_cov is not None and noise.model != "gaussian":
+    if given_pose_cov is not None:          # Gaussian noise: every responsibility is 1 either way
         known = np.isfinite(given_pose_cov[:, 0, 0])
         Sigma = np.where(known[:, None, None], given_pose_cov, 0.0)
         resp = noise_loglik(noise, nu, R + H @ Sigma[None] @ np.swapaxes(H, -1, -2))[1]
