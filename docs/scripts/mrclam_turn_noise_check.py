@@ -79,7 +79,8 @@ def main():
         e, s = window_z(run, learned, T)
         z = e / np.maximum(s, 1e-12)
         print(f"  T = {T:4.0f} s: error rms {np.sqrt(np.mean(e ** 2)):.3f} rad, model std rms "
-              f"{np.sqrt(np.mean(s ** 2)):.3f}, z rms {np.sqrt(np.mean(z ** 2)):.2f}, |z| > 3: {np.mean(np.abs(z) > 3):.2f}")
+              f"{np.sqrt(np.mean(s ** 2)):.3f}, z rms {np.sqrt(np.mean(z ** 2)):.2f}, "
+              f"|z| > 3: {np.mean(np.abs(z) > 3):.2f}")
 
 
 if __name__ == "__main__":
