@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 import re
 import tarfile
+import zipfile
 from collections import Counter
 from pathlib import Path
 
@@ -95,8 +96,12 @@ def test_sources_directory_parent_and_archive(dataset, tmp_path):
     tar_path = tmp_path / "MRCLAM_Dataset1.tar.xz"
     with tarfile.open(tar_path, "w:xz") as tar:
         tar.add(dataset, arcname="MRCLAM_Dataset1")
+    zip_path = tmp_path / "MRCLAM_Dataset1.zip"         # the form the dataset's site offers
+    with zipfile.ZipFile(zip_path, "w", zipfile.ZIP_DEFLATED) as archive:
+        for path in sorted(dataset.iterdir()):
+            archive.write(path, f"MRCLAM_Dataset1/{path.name}")
     before = sorted(p.name for p in tmp_path.rglob("*"))
-    runs = [load_mrclam(dataset, 1), load_mrclam(tmp_path, 1), load_mrclam(tar_path, 1)]
+    runs = [load_mrclam(dataset, 1), load_mrclam(tmp_path, 1), load_mrclam(tar_path, 1), load_mrclam(zip_path, 1)]
     assert sorted(p.name for p in tmp_path.rglob("*")) == before          # nothing extracted
     for run in runs[1:]:
         np.testing.assert_array_equal(run.odometry_v, runs[0].odometry_v)
@@ -190,7 +195,7 @@ def test_ambiguous_directory_and_bad_archive(dataset, tmp_path):
         load_mrclam(tmp_path, 1)
     junk = tmp_path / "junk.tar.xz"
     junk.write_bytes(b"not an archive")
-    with pytest.raises(ValueError, match="junk.tar.xz: not a readable tar archive"):
+    with pytest.raises(ValueError, match="junk.tar.xz: not a readable zip or tar archive"):
         load_mrclam(junk, 1)
 
 

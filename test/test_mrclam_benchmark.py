@@ -298,3 +298,15 @@ def test_run_method_batch_is_the_models_optimum_as_a_run(sweep, tmp_path):
     assert metrics["landmarks"]["n_spurious"] == 0 and metrics["landmarks"]["shape_error"] < 0.05
     rows = np.genfromtxt(tmp_path / "batch" / "trajectory.csv", delimiter=",", names=True)
     assert rows.size > 50 and np.all(np.diff(rows["t"]) > 0)
+
+
+def test_a_dataset_is_found_as_its_directory_or_its_archive(tmp_path):
+    """The directory first, then the archive: .zip as the dataset's site offers it, or .tar.xz."""
+    (tmp_path / "MRCLAM_Dataset2.zip").write_bytes(b"")
+    (tmp_path / "MRCLAM_Dataset9.tar.xz").write_bytes(b"")
+    assert benchmark.dataset_source(tmp_path, 2).name == "MRCLAM_Dataset2.zip"
+    assert benchmark.dataset_source(tmp_path, 9).name == "MRCLAM_Dataset9.tar.xz"
+    (tmp_path / "MRCLAM_Dataset9").mkdir()
+    assert benchmark.dataset_source(tmp_path, 9).name == "MRCLAM_Dataset9"
+    with pytest.raises(FileNotFoundError, match="no MRCLAM_Dataset3 directory"):
+        benchmark.dataset_source(tmp_path, 3)

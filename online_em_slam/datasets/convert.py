@@ -21,7 +21,7 @@ def main(argv=None) -> int:
     parser.add_argument("output", help="bag directory to create")
     parser.add_argument("--data-dir", default=None,
                         help="directory holding car_park/ and victoria_park/ (default: packaged data, "
-                             "or $ONLINE_EM_SLAM_DATA); mrclam: the MRCLAM_DatasetN directory or its .tar.xz")
+                             "or $ONLINE_EM_SLAM_DATA); mrclam: the MRCLAM_DatasetN directory or its .zip or .tar.xz")
     parser.add_argument("--robot", type=int, default=None, help="mrclam only (required): robot 1-5")
     parser.add_argument("--all-robots", action="store_true",
                         help="mrclam only: all five robots in one bag, topics under /robot1 .. /robot5")

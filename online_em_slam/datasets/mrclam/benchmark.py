@@ -54,6 +54,7 @@ from .paired import compare_files
 from .table import DONE, METHODS, TWO_NOISE, results_markdown
 
 MATCH_GATE = 1.0
+ARCHIVE_SUFFIXES = (".zip", ".tar.xz", ".tar.gz", ".tar")    # a dataset's archive, after its directory
 DEFAULT_SEEDS = [0, 1, 2, 3, 4]                        # particle methods over five seeds, as the issue asks
 SINGLE_RUN = ("ekf_slam", "batch")                   # deterministic on the params' noise: the first seed only
 RUNNER_METHOD = {"online_em_complete": "online_em"}
@@ -98,11 +99,13 @@ def run_name(dataset: int, robot: int, seconds: int, ids: str, start: int = 0) -
 
 
 def dataset_source(data_dir: Path, dataset: int) -> Path:
-    """data_dir/MRCLAM_DatasetN (directory) or data_dir/MRCLAM_DatasetN.tar.xz."""
-    for candidate in (data_dir / f"MRCLAM_Dataset{dataset}", data_dir / f"MRCLAM_Dataset{dataset}.tar.xz"):
+    """data_dir/MRCLAM_DatasetN (directory), else its archive: .zip (as the dataset's site offers it),
+    .tar.xz, .tar.gz or .tar."""
+    name = f"MRCLAM_Dataset{dataset}"
+    for candidate in (data_dir / name, *(data_dir / f"{name}{ext}" for ext in ARCHIVE_SUFFIXES)):
         if candidate.exists():
             return candidate
-    raise FileNotFoundError(f"{data_dir}: no MRCLAM_Dataset{dataset} directory or .tar.xz")
+    raise FileNotFoundError(f"{data_dir}: no {name} directory or {name}{{{','.join(ARCHIVE_SUFFIXES)}}}")
 
 
 def plan(args) -> list[Item]:
@@ -340,7 +343,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="online-em-slam-mrclam-benchmark", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     parser.add_argument("--data-dir",
-                        help="directory holding MRCLAM_DatasetN directories or MRCLAM_DatasetN.tar.xz archives")
+                        help="directory holding MRCLAM_DatasetN directories or their archives (.zip, .tar.xz)")
     parser.add_argument("--output", help="output directory (bags/, runs/, results.json, results.md)")
     parser.add_argument("--datasets", type=int, nargs="+", default=[1, 9])
     parser.add_argument("--robots", type=int, nargs="+", default=[1, 2, 3, 4, 5], choices=range(1, 6))

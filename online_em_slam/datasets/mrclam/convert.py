@@ -2,7 +2,7 @@
 
 Command line (through the KTH converter's entry point)::
 
-    online-em-slam-convert mrclam OUTPUT --data-dir DIR_OR_TARXZ --robot K [--seconds S] [--start S0]
+    online-em-slam-convert mrclam OUTPUT --data-dir DIR_OR_ARCHIVE --robot K [--seconds S] [--start S0]
                            [--unknown-ids] [--storage mcap|sqlite3] [--overwrite] [--no-progress]
 
 Two layers, as in :mod:`online_em_slam.datasets.kth.convert` (whose message helpers are reused):
@@ -275,7 +275,7 @@ def convert_cli(args, convert, width: int = 28) -> int:
     """The MRCLAM conversions' command line after their own checks: ``convert()`` loads and writes,
     returning (messages per topic, report lines); prints them and the total; 0 or 1 (one error line)."""
     if args.data_dir is None:
-        return fail("mrclam needs --data-dir (the MRCLAM_DatasetN directory or its .tar.xz)")
+        return fail("mrclam needs --data-dir (the MRCLAM_DatasetN directory or its .zip or .tar.xz)")
     if args.no_map_to_gps:
         return fail("--no-map-to-gps is for the KTH datasets (an MRCLAM bag has no map -> gps transform)")
     t0 = time.monotonic()

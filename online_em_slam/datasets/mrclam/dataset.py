@@ -10,8 +10,9 @@ Leung, Halpern, Barfoot, Liu, IJRR 30(8), 2011; the "synchronised 50 Hz" text fo
 * ``RobotK_Groundtruth.dat`` (t, x, y, yaw): Vicon pose, 50 Hz.
 
 Times are seconds from the dataset start.  ``data_dir`` may be the directory holding the
-.dat files, a directory holding exactly one ``MRCLAM_Dataset*`` directory, or a tar
-archive of one (``MRCLAM_Dataset1.tar.xz``), read in memory (nothing is extracted).
+.dat files, a directory holding exactly one ``MRCLAM_Dataset*`` directory, or a zip or tar
+archive of one (``MRCLAM_Dataset1.zip``, ``MRCLAM_Dataset1.tar.xz``), read in memory (nothing is
+extracted).
 
 Messy input handled here:
 
@@ -44,6 +45,7 @@ import io
 import math
 import tarfile
 import warnings
+import zipfile
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -135,20 +137,33 @@ def _read_directory(path: Path, names: list[str]) -> tuple[str, dict[str, str]]:
     return str(base), texts
 
 
+def _archive_members(path: Path):
+    """(base name, a function reading the member's bytes) of every file in a zip archive (the
+    form the dataset's site offers) or a tar archive (any compression), in archive order."""
+    if zipfile.is_zipfile(path):
+        with zipfile.ZipFile(path) as archive:
+            for info in archive.infolist():
+                if not info.is_dir():
+                    yield info.filename.rsplit("/", 1)[-1], lambda info=info: archive.read(info)
+        return
+    with tarfile.open(path, "r|*") as tar:              # one streaming pass
+        for member in tar:
+            if member.isfile():
+                yield member.name.rsplit("/", 1)[-1], lambda member=member: tar.extractfile(member).read()
+
+
 def _read_archive(path: Path, names: list[str]) -> tuple[str, dict[str, str]]:
-    """The named members of a tar archive (any directory inside), read in one streaming pass."""
+    """The named members of a zip or tar archive (any directory inside), extracting nothing."""
     texts: dict[str, str] = {}
     try:
-        with tarfile.open(path, "r|*") as tar:
-            for member in tar:
-                name = member.name.rsplit("/", 1)[-1]
-                if name not in names or not member.isfile():
-                    continue
-                if name in texts:
-                    raise ValueError(f"{path} holds {name} more than once (several datasets?); extract one")
-                texts[name] = tar.extractfile(member).read().decode(errors="replace")
-    except (tarfile.TarError, EOFError, OSError) as exc:
-        raise ValueError(f"{path}: not a readable tar archive ({exc})") from None
+        for name, read in _archive_members(path):
+            if name not in names:
+                continue
+            if name in texts:
+                raise ValueError(f"{path} holds {name} more than once (several datasets?); extract one")
+            texts[name] = read().decode(errors="replace")
+    except (tarfile.TarError, zipfile.BadZipFile, EOFError, OSError) as exc:
+        raise ValueError(f"{path}: not a readable zip or tar archive ({exc})") from None
     missing = [n for n in names if n not in texts]
     if missing:
         raise FileNotFoundError(f"{path}: archive holds no {missing[0]}")

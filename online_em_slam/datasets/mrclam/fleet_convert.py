@@ -2,7 +2,7 @@
 
 Command line (through ``online-em-slam-convert``)::
 
-    online-em-slam-convert mrclam OUTPUT --data-dir DIR_OR_TARXZ --all-robots [--seconds S]
+    online-em-slam-convert mrclam OUTPUT --data-dir DIR_OR_ARCHIVE --all-robots [--seconds S]
                            [--unknown-ids] [--storage mcap|sqlite3] [--overwrite] [--no-progress]
 
 Each robot is converted as the single-robot converter does it
