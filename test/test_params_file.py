@@ -33,10 +33,14 @@ def _core_fields():
     return list(core_parameters())
 
 
+# Settings whose value another setting of their section must allow.
+COMPANIONS = {"motion.turn_per_meter": {"model": "unicycle"}}      # the unicycle's yaw rate only
+
+
 def _from_dotted(name, value):
     from online_em_slam.core.config import SlamConfig
     section, key = name.split(".")
-    return SlamConfig.from_dict({section: {key: value}})
+    return SlamConfig.from_dict({section: {**COMPANIONS.get(name, {}), key: value}})
 
 
 def test_every_core_field_says_what_it_may_be():

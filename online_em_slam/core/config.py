@@ -73,6 +73,10 @@ class MotionConfig:
     control_delay: float = param(0.0, 0.0, 5.0, doc="Dead time of the drive (s): a control (speed, steering "
                                  "or yaw rate command) moves the vehicle from this long after its stamp on "
                                  "(not the odometry model, which measures the motion itself).")
+    turn_per_meter: float = param(0.0, -1.0, 1.0, doc="Calibration of the motion input, unicycle model: the "
+                                  "yaw rate delivered beyond the commanded one per metre driven (rad/m), "
+                                  "rotation_gain omega + turn_per_meter v: a differential drive whose wheels "
+                                  "differ a little in diameter turns while commanded straight.")
     sigma_speed: float = param(0.5, *_STD, doc="Speed noise std (m/s) over noise_reference_period.")
     sigma_steering: float = param(math.pi / 60, *_STD, doc="Steering angle / yaw rate noise std (rad, rad/s) "
                                   "over noise_reference_period.")
@@ -120,6 +124,9 @@ class MotionConfig:
 
     def validate(self, prefix: str = "motion") -> None:
         check_fields(self, prefix)
+        if self.turn_per_meter != 0.0 and self.model != "unicycle":
+            raise ValueError(f"{prefix}.turn_per_meter is a calibration of the unicycle model's yaw rate, "
+                             f"not of the {self.model} model's input")
 
 
 @dataclass
@@ -383,6 +390,9 @@ class SlamConfig:
     def validate(self) -> "SlamConfig":
         for f in fields(self):
             getattr(self, f.name).validate(f.name)
+        if "motion_drift" in self.noise_learning.learn and self.motion.model != "unicycle":
+            raise ValueError("noise_learning.learn: motion_drift (motion.turn_per_meter) is learned for the "
+                             f"unicycle model, not the {self.motion.model} model")
         return self
 
     def to_dict(self) -> dict[str, Any]:

@@ -7,7 +7,8 @@ from dataclasses import dataclass
 from .config_fields import check_fields, check_length, check_range, param, param_info
 
 LEARNABLE_NOISE = ("range", "bearing", "correlation", "mixture", "dof", "range_growth", "serial_correlation",
-                   "serial_length", "motion_scale", "motion_gains", "motion_gain_in_place", "motion_delay", "motion_shape")
+                   "serial_length", "motion_scale", "motion_gains", "motion_gain_in_place", "motion_delay",
+                   "motion_drift", "motion_shape")
 
 
 @dataclass
@@ -86,8 +87,9 @@ class NoiseLearningConfig:
                                    "rotation_gain), motion_gain_in_place (with motion_gains: a third gain, "
                                    "motion.rotation_in_place_gain, for turns in place; not the default of "
                                    "any data set, docs/RESULTS.md), motion_delay (the drive's dead time "
-                                   "motion.control_delay, by the gains' statistic, with them or alone). To learn "
-                                   "nothing set enabled false.")
+                                   "motion.control_delay, by the gains' statistic, with them or alone), "
+                                   "motion_drift (the unicycle's turn per metre driven, motion.turn_per_meter, "
+                                   "the same way). To learn nothing set enabled false.")
     step_size_exponent: float = param(0.7, 0.5, 1.0, lo_open=True, doc="Step size gamma_n = n^-exponent of the "
                                       "noise statistics.")
     motion_step_size_exponent: float = param(1.0, 0.5, 1.0, lo_open=True, doc="Step size exponent of the motion "
@@ -146,9 +148,13 @@ class NoiseLearningConfig:
                                                      "learned dead time of the drive (motion.control_delay), "
                                                      "floor <= ceiling; it is used by the rule of "
                                                      "motion_gain_tolerance, read in seconds.")
+    motion_drift_limits: tuple[float, float] = param((-0.2, 0.2), -1.0, 1.0, doc="Floor and ceiling (rad/m) "
+                                                     "of the learned turn per metre driven "
+                                                     "(motion.turn_per_meter), floor <= ceiling; it is used by "
+                                                     "the rule of motion_gain_tolerance, read in rad/m.")
     _LIMITS = ("sigma_range_limits", "sigma_bearing_limits", "range_growth_limits", "mixture_weight_limits",
                "mixture_scale_limits", "dof_limits", "motion_scale_limits",
-               "motion_gain_limits", "motion_delay_limits")
+               "motion_gain_limits", "motion_delay_limits", "motion_drift_limits")
 
     def validate(self, prefix: str = "noise_learning") -> None:
         if isinstance(self.learn, str):

@@ -18,6 +18,8 @@ from ..models.angles import wrap_angle
 
 # The shift of the command stream (s) whose effect gives d pose / d control_delay.
 DELAY_STEP = 1e-4
+# The change of the turn per metre (rad/m) whose effect gives d pose / d turn_per_meter.
+DRIFT_STEP = 1e-6
 
 
 class PendingMotion:
@@ -96,7 +98,8 @@ def _nudged(config: MotionConfig, name: str, controls: np.ndarray, dts: np.ndarr
     dead time's step shifts the segments instead (:func:`delayed_segments`)."""
     if name == motion_models.DELAY:
         return (config, *delayed_segments(controls, dts, DELAY_STEP), DELAY_STEP)
-    step = 1e-6 * getattr(config, name)
+    # A gain's step is relative; the turn per metre may be 0, so its step is absolute.
+    step = DRIFT_STEP if name == motion_models.DRIFT else 1e-6 * getattr(config, name)
     return replace(config, **{name: getattr(config, name) + step}), controls, dts, step
 
 

@@ -217,6 +217,8 @@ GAIN_NAMES = ("translation_gain", "rotation_gain", "rotation_in_place_gain")
 # The drive's dead time (motion.control_delay), learned with the gains (noise_learning motion_delay):
 # a shift of the command stream moves the poses linearly to first order, as a gain does.
 DELAY = "control_delay"
+# The unicycle's turn per metre driven (motion.turn_per_meter), learned the same way (motion_drift).
+DRIFT = "turn_per_meter"
 # A commanded speed below this (m/s) is a turn in place (rotation_in_place_gain).
 IN_PLACE_SPEED = 1e-3
 
@@ -230,17 +232,21 @@ def gain(config: MotionConfig, name: str) -> float:
 def calibrated(config: MotionConfig, control: np.ndarray) -> np.ndarray:
     """The motion input times its gains: (speed, steering or yaw rate) by (translation_gain,
     rotation_gain), the turning by rotation_in_place_gain where the speed is below
-    IN_PLACE_SPEED; an odometry increment (dx, dy, dphi) by (translation, translation, rotation)."""
+    IN_PLACE_SPEED; an odometry increment (dx, dy, dphi) by (translation, translation, rotation).
+    The unicycle's yaw rate then gains turn_per_meter times the speed delivered (validated: 0 for
+    the other models)."""
     control = np.asarray(control, dtype=float)
     t, r, r0 = config.translation_gain, config.rotation_gain, gain(config, "rotation_in_place_gain")
-    if t == 1.0 and r == 1.0 and r0 == 1.0:
+    k = config.turn_per_meter
+    if t == 1.0 and r == 1.0 and r0 == 1.0 and k == 0.0:
         return control
     if control.shape[-1] == 3:
         return control * np.array([t, t, r])
-    if r0 == r:
+    if r0 == r and k == 0.0:
         return control * np.array([t, r])
-    turn = np.where(np.abs(control[..., 0]) < IN_PLACE_SPEED, r0, r)
-    return np.stack([control[..., 0] * t, control[..., 1] * turn], axis=-1)
+    speed = control[..., 0] * t
+    turn = control[..., 1] * (r if r0 == r else np.where(np.abs(control[..., 0]) < IN_PLACE_SPEED, r0, r))
+    return np.stack([speed, turn + k * speed if k != 0.0 else turn], axis=-1)
 
 
 def propagate(config: MotionConfig, poses: np.ndarray, control: np.ndarray, dt: float):

@@ -44,16 +44,17 @@ from ...models.observation import information_noise, noise_covariance, sensor_po
 from ..segment_factors import motion_residual
 from ..step import FilterStepData
 from .averages import StochasticAverage
-from .motion_gains import DELAY, MotionGains, gain_statistic, known, move_towards
+from .motion_gains import (ADDITIVE_RATES, MotionGains, calibration_limits, calibration_names, gain_statistic,
+                           known, move_towards)
 from .motion_noise import (MotionWindow, absolute_error, group_scales, prediction_statistic, ratio_error,
                            shape_statistic)
 from .observation import UsedObservations, mixture_m_step, observation_statistics, student_t_dof
 from .range_fit import RangeBins, range_noise_fit
 from .serial_correlation import SerialStatistic, pose_free, whitened
 
-MOTION_QUANTITIES = frozenset({"motion_scale", "motion_gains", "motion_delay", "motion_shape"})
-# The calibration of the motion input (motion_gains.py): gains and the drive's dead time.
-CALIBRATION = frozenset({"motion_gains", "motion_delay"})
+MOTION_QUANTITIES = frozenset({"motion_scale", "motion_gains", "motion_delay", "motion_drift", "motion_shape"})
+# The calibration of the motion input (motion_gains.py): gains, the turn per metre, the drive's dead time.
+CALIBRATION = frozenset({"motion_gains", "motion_delay", "motion_drift"})
 OBSERVATION_QUANTITIES = frozenset({"range", "bearing", "correlation", "mixture", "dof", "range_growth",
                                     "serial_correlation", "serial_length"})
 # Largest change of the motion scale in use per filter step, in log: a factor 9 takes 110 steps.
@@ -97,12 +98,9 @@ class NoiseLearner:
         self.scale_in_use = 1.0
         self._motion_warm = False
         # The calibration of the motion input (motion_gains.py): the gains in use.
-        self.gain_names = GAIN_NAMES[:2]                  # none learned: the configured ones
-        if learn & CALIBRATION:
-            gains = GAIN_NAMES if "motion_gain_in_place" in learn else GAIN_NAMES[:2]
-            self.gain_names = (gains if "motion_gains" in learn else ()) + ((DELAY,) if "motion_delay" in learn else ())
-        self._gain_limits = np.array([self.settings.motion_delay_limits if name == DELAY
-                                      else self.settings.motion_gain_limits for name in self.gain_names]).T
+        self.gain_names = calibration_names(learn) if learn & CALIBRATION else GAIN_NAMES[:2]   # none: configured
+        self._gain_limits = calibration_limits(self.gain_names, self.settings)
+        self._gain_rates = np.array([ADDITIVE_RATES.get(name, 0.0) for name in self.gain_names])
         self.gains = (MotionGains(self.settings.motion_step_size_exponent, self.settings.motion_window,
                                   len(self.gain_names)) if learn & CALIBRATION else None)
         self.gains_in_use = np.array([gain(config.motion, name) for name in self.gain_names])
@@ -426,8 +424,7 @@ class NoiseLearner:
                                      self.settings.motion_gain_tolerance)
         if not self.holding:
             target = np.where(self._gain_warm, self.gains_estimate, self.gains_in_use)
-            self.gains_in_use = move_towards(self.gains_in_use, target, _SCALE_RATIO,
-                                             np.array([name == DELAY for name in self.gain_names]))
+            self.gains_in_use = move_towards(self.gains_in_use, target, _SCALE_RATIO, self._gain_rates)
 
     # ------------------------------------------------------------ M-step
     def _observation_m_step(self, stats: np.ndarray) -> ObservationNoiseConfig:

@@ -29,12 +29,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...models.motion import DELAY
+from ...models.motion import DELAY, DRIFT, GAIN_NAMES
 from .averages import StochasticAverage
 from .motion_noise import MotionSteps, block_diagonal, compound
 
-# Largest change of a learned dead time in use per filter step (s): an additive rate, as it starts at 0.
+# Largest change per filter step of a learned dead time in use (s) and of a turn per metre (rad/m):
+# additive rates, as both may start at 0.
 MAX_DELAY_RATE = 0.005
+MAX_DRIFT_RATE = 0.001
+ADDITIVE_RATES = {DELAY: MAX_DELAY_RATE, DRIFT: MAX_DRIFT_RATE}
 MAX_CONDITION = 1e6                   # N (unit diagonal) of the informed gains solved only below this
 # A learned gain replaces the one in use once they differ by this many standard errors.
 REJECTION = 3.0
@@ -116,13 +119,30 @@ def known(estimate: np.ndarray, in_use: np.ndarray, errors: np.ndarray, toleranc
     return (errors <= tolerance) | (np.abs(estimate - in_use) > REJECTION * errors)
 
 
+def calibration_names(learn) -> tuple[str, ...]:
+    """The motion.* calibration values ``learn`` (noise_learning.learn) has learned, in the order of
+    (G)'s columns: the gains (the in-place one with motion_gain_in_place), the turn per metre, the
+    dead time."""
+    gains = GAIN_NAMES if "motion_gain_in_place" in learn else GAIN_NAMES[:2]
+    return ((gains if "motion_gains" in learn else ()) + ((DRIFT,) if "motion_drift" in learn else ())
+            + ((DELAY,) if "motion_delay" in learn else ()))
+
+
+def calibration_limits(names: tuple[str, ...], settings) -> np.ndarray:
+    """(floor, ceiling) of each calibration value ``names`` (2, G), from NoiseLearningConfig ``settings``."""
+    limits = {DELAY: settings.motion_delay_limits, DRIFT: settings.motion_drift_limits}
+    return np.array([limits.get(name, settings.motion_gain_limits) for name in names]).T
+
+
 def move_towards(in_use: np.ndarray, target: np.ndarray, ratio: tuple[float, float],
-                 additive: np.ndarray | None = None) -> np.ndarray:
-    """Each gain moved towards its target by at most the factor ``ratio`` allows; those marked
-    ``additive`` (G,) (a dead time, which may start at 0) by at most MAX_DELAY_RATE."""
+                 rates: np.ndarray | None = None) -> np.ndarray:
+    """Each gain moved towards its target by at most the factor ``ratio`` allows; those with an
+    additive rate (``rates`` (G,) > 0: a dead time, a turn per metre, which may start at 0) by at
+    most that much."""
+    additive = None if rates is None else rates > 0.0
     if additive is None or not additive.any():
         return in_use * np.clip(target / in_use, *ratio)
-    moved = in_use + np.clip(target - in_use, -MAX_DELAY_RATE, MAX_DELAY_RATE)
+    moved = in_use + np.clip(target - in_use, -rates, rates)
     scaled = in_use * np.clip(np.divide(target, in_use, out=np.ones_like(target), where=~additive), *ratio)
     return np.where(additive, moved, scaled)
 
