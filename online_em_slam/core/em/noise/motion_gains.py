@@ -6,7 +6,9 @@ Dataset 9) makes a heading error that grows with every turn, which no noise
 model explains.  The gains kappa = (translation_gain, rotation_gain) of the
 motion model (models/motion.py, ``calibrated``; with ``motion_gain_in_place``
 also rotation_in_place_gain, for a robot whose controllers deliver a turn in
-place and a turn while driving in different shares: 1.0 and 0.6 on Dataset 9)
+place and a turn while driving in different shares: 1.0 and 0.6 on Dataset 9;
+with ``motion_drift`` the unicycle's turn_per_meter, with ``motion_delay`` the drive's
+dead time, both added rather than multiplied, as they may start at 0)
 are parameters of the HMM like the map, and the same window as the motion
 scale's statistic (M) estimates them: the pose predicted open loop over the
 last L filter steps,
