@@ -24,8 +24,9 @@ def test_the_yaw_rate_gains_the_turn_per_metre_of_the_speed_delivered():
     expected = np.column_stack([0.9 * controls[:, 0], 0.8 * controls[:, 1] + KAPPA * 0.9 * controls[:, 0]])
     np.testing.assert_allclose(calibrated(config, controls), expected, rtol=1e-15)
     uncalibrated = _unicycle()
-    assert calibrated(uncalibrated, controls) is not None
-    np.testing.assert_array_equal(calibrated(uncalibrated, controls), controls)
+    assert calibrated(uncalibrated, controls) is controls              # nothing to calibrate: no copy
+    np.testing.assert_array_equal(calibrated(_unicycle(turn_per_meter=0.0, rotation_gain=0.8), controls),
+                                  controls * [1.0, 0.8])
 
 
 def test_a_turn_per_metre_is_refused_where_the_input_is_not_a_yaw_rate():
