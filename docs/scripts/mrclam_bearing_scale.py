@@ -9,11 +9,13 @@ ahead of the Vicon centre as well (negative: behind).  Prints k and d with their
 MAD of each fit, and the span of true bearings the run saw.
 """
 import argparse
+from pathlib import Path
 
 import numpy as np
 
 from mrclam_sensor_truth import errors, mad
 
+from online_em_slam.datasets.mrclam.benchmark import dataset_source
 from online_em_slam.datasets.mrclam.dataset import load_mrclam
 
 
@@ -33,7 +35,7 @@ def main():
     print("run     bearings (deg)   scale k           MAD    | k with offset d        d (m)            MAD")
     for dataset in (1, 9):
         for robot in range(1, 6):
-            run = load_mrclam(f"{args.data_dir}/MRCLAM_Dataset{dataset}.tar.xz", robot, args.seconds or None)
+            run = load_mrclam(dataset_source(Path(args.data_dir), dataset), robot, args.seconds or None)
             er, eb = errors(run)
             keep = (np.abs(eb - np.median(eb)) < 5 * mad(eb)) & (np.abs(er - np.median(er)) < 5 * mad(er))
             e, b = eb[keep], (run.measurement_bearing - eb)[keep]

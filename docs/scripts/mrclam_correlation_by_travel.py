@@ -13,10 +13,12 @@ online learner estimates one correlation per scan pair whatever the motion betwe
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 
 from mrclam_sensor_truth import errors, mad
+from online_em_slam.datasets.mrclam.benchmark import dataset_source
 from online_em_slam.datasets.mrclam.dataset import load_mrclam
 from online_em_slam.datasets.mrclam.survey import ground_truth_at
 
@@ -64,7 +66,7 @@ def main() -> None:
     for dataset in (1, 9):
         found = []
         for robot in range(1, 6):
-            run = load_mrclam(f"{args.data_dir}/MRCLAM_Dataset{dataset}.tar.xz", robot, args.seconds or None)
+            run = load_mrclam(dataset_source(Path(args.data_dir), dataset), robot, args.seconds or None)
             p = pairs(run)
             # Each run standardised on its own: the robots' cameras differ in spread.
             p[:, :2] /= p[:, :2].std()

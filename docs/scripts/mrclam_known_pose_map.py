@@ -14,9 +14,11 @@ landmark's (the same for every robot): each robot's per-landmark median range er
 mean removed, correlated between the robots of a dataset.
 """
 import argparse
+from pathlib import Path
 
 import numpy as np
 
+from online_em_slam.datasets.mrclam.benchmark import dataset_source
 from online_em_slam.datasets.mrclam.dataset import load_mrclam
 from online_em_slam.datasets.mrclam.survey import ground_truth_at
 from online_em_slam.offline.evaluation import map_error
@@ -103,7 +105,7 @@ def main() -> None:
     for dataset in (1, 9):
         medians = []
         for robot in range(1, 6):
-            run = load_mrclam(f"{args.data_dir}/MRCLAM_Dataset{dataset}.tar.xz", robot, seconds=args.seconds)
+            run = load_mrclam(dataset_source(Path(args.data_dir), dataset), robot, seconds=args.seconds)
             medians.append(median_range_errors(run))
             plain, biased = run_maps(run, args.bias_prior)
             shapes.append((plain.shape_error, biased.shape_error))

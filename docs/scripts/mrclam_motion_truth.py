@@ -10,9 +10,11 @@ gain of the windows turning in place (commanded speed below 1 cm/s) and while dr
     python docs/scripts/mrclam_motion_truth.py [--data-dir ../shared/datasets/mrclam] [--seconds 600]
 """
 import argparse
+from pathlib import Path
 
 import numpy as np
 
+from online_em_slam.datasets.mrclam.benchmark import dataset_source
 from online_em_slam.datasets.mrclam.dataset import load_mrclam
 
 MAX_RATE = 4.0      # rad/s: faster Vicon yaw steps are glitches
@@ -57,7 +59,7 @@ def main():
     print("|---|---|---|---|---|---|")
     for d in (1, 9):
         for r in range(1, 6):
-            run = load_mrclam(f"{args.data_dir}/MRCLAM_Dataset{d}.tar.xz", r, seconds=args.seconds)
+            run = load_mrclam(dataset_source(Path(args.data_dir), d), r, seconds=args.seconds)
             true, cmd, speed, glitches = yaw_rate_windows(run)
             gain = float(np.sum(true * cmd) / np.sum(cmd * cmd))
             res = true - gain * cmd

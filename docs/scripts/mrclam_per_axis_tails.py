@@ -28,14 +28,17 @@ import numpy as np
 
 
 def tails(data_dir: str) -> None:
+    from pathlib import Path
+
     from mrclam_sensor_truth import errors, mad
+    from online_em_slam.datasets.mrclam.benchmark import dataset_source
     from online_em_slam.datasets.mrclam.dataset import load_mrclam
 
     print("| run | kurtosis range / bearing | P(bearing > 3) | P(bearing > 3 given range > 3) | P(range > 3) | "
           "P(range > 3 given bearing > 3) | corr(abs) |\n|---|---|---|---|---|---|---|")
     for dataset in (1, 9):
         for robot in range(1, 6):
-            run = load_mrclam(f"{data_dir}/MRCLAM_Dataset{dataset}.tar.xz", robot, 600)
+            run = load_mrclam(dataset_source(Path(data_dir), dataset), robot, 600)
             e_r, e_b = errors(run)
             z_r, z_b = ((e - np.median(e)) / mad(e) for e in (e_r, e_b))
             out_r, out_b = np.abs(z_r) > 3, np.abs(z_b) > 3

@@ -11,9 +11,11 @@ apart, its mean error removed, beyond 5 MADs left out): the serial correlation t
 would learn from exact poses.
 """
 import argparse
+from pathlib import Path
 
 import numpy as np
 
+from online_em_slam.datasets.mrclam.benchmark import dataset_source
 from online_em_slam.datasets.mrclam.dataset import load_mrclam
 from online_em_slam.datasets.mrclam.survey import ground_truth_at
 
@@ -55,7 +57,7 @@ def main():
           "   lag-1 corr range / bearing")
     for dataset in (1, 9):
         for robot in range(1, 6):
-            run = load_mrclam(f"{args.data_dir}/MRCLAM_Dataset{dataset}.tar.xz", robot, args.seconds or None)
+            run = load_mrclam(dataset_source(Path(args.data_dir), dataset), robot, args.seconds or None)
             er, eb = errors(run)
             b = np.degrees(eb)
             print(f"D{dataset}R{robot} {len(er):5d}   {er.std():.3f} / {mad(er):.3f} / {er.mean():+.3f}"

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from online_em_slam.datasets.mrclam.benchmark import dataset_source
 from online_em_slam.datasets.mrclam.dataset import load_mrclam
 
 WINDOW = 1.0          # s
@@ -81,7 +82,7 @@ def main() -> None:
     ratios: dict[int, list[float]] = {1: [], 9: []}
     for dataset in (1, 9):
         for robot in range(1, 6):
-            run = load_mrclam(f"{args.data_dir}/MRCLAM_Dataset{dataset}.tar.xz", robot, seconds=args.seconds)
+            run = load_mrclam(dataset_source(Path(args.data_dir), dataset), robot, seconds=args.seconds)
             a, b, g, sd_one, sd_two = fit(*windows(run))
             ratios[dataset].append(b / a)
             print(f"| D{dataset} R{robot} | {a:.3f} | {b:+.3f} | {b / a:+.2f} | {g:.3f} | "

@@ -15,10 +15,12 @@ mean square near 1 at every T; above 1 the noise under-predicts the drift. Vicon
 NOISE_YAML: a run's learned noise.yaml (online-em-slam run's output).
 """
 import argparse
+from pathlib import Path
 
 import numpy as np
 import yaml
 
+from online_em_slam.datasets.mrclam.benchmark import dataset_source
 from online_em_slam.datasets.mrclam.dataset import load_mrclam
 from online_em_slam.core.models.motion import IN_PLACE_SPEED
 
@@ -75,7 +77,7 @@ def main():
     parser.add_argument("--seconds", type=float, default=600.0)
     parser.add_argument("--windows", type=float, nargs="+", default=[5.0, 10.0, 30.0, 60.0])
     args = parser.parse_args()
-    run = load_mrclam(f"{args.data_dir}/MRCLAM_Dataset{args.dataset}.tar.xz", args.robot, args.seconds)
+    run = load_mrclam(dataset_source(Path(args.data_dir), args.dataset), args.robot, args.seconds)
     learned = learned_turning(args.noise_yaml)
     print(f"D{args.dataset} R{args.robot}: gain {learned[0]:.3f}, in place {learned[1]:.3f}, dead time "
           f"{learned[2]:.3f} s, turn per metre {learned[6]:+.4f} rad/m, turning noise {learned[3]:.4f} + "
