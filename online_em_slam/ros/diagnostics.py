@@ -89,70 +89,88 @@ class Diagnostics:
         return level, message
 
     def publish(self) -> None:
+        """One DiagnosticArray of the window since the last publication; the window restarts."""
         node = self.node
-        inputs = node.inputs                    # the queue, the load, corrections, frames, silent streams
         with node.lock:
             now = time.monotonic()
             span = max(now - self.window_start, 1e-6)
-            latencies = np.asarray(self.latencies) if self.latencies else np.zeros(0)
             drops, decided = split_decisions(node.all_drops())
-            total = sum(drops.values())
-            slam = node.slam
-            landmarks = slam.landmarks()
-            values = {
-                "update_rate_hz": self.window_updates / span,
-                "input_rate_hz": self.window_inputs / span,
-                "latency_mean_ms": 1e3 * float(latencies.mean()) if latencies.size else 0.0,
-                "latency_max_ms": 1e3 * float(latencies.max()) if latencies.size else 0.0,
-                "queue_wait_max_ms": 1e3 * self.queue_wait_max,
-                "queue_wait_peak_ms": 1e3 * self.queue_wait_peak,
-                "ess": self.last_ess if math.isfinite(self.last_ess) else float(node.config.filter.num_particles),
-                "num_particles": slam.config.filter.num_particles,
-                "landmarks": len(landmarks),
-                "confirmed_landmarks": int(np.count_nonzero(landmarks.confirmed)),
-                "observation_updates": self.updates,
-                "inputs": self.inputs,
-                "queued_inputs": len(inputs.pipeline),
-                "load": inputs.pipeline.current_load(now),
-                "load_max": inputs.pipeline.max_load,
-                "paused": node.paused,
-                "resets": self.resets,
-                "last_stamp": slam.last_stamp if slam.last_stamp is not None else -1.0,
-                "dropped_total": total,
-                "decided_total": sum(decided.values()),
-            }
-            learned = slam.learned_noise()              # noise learned online (core/em/noise/)
-            if learned["enabled"]:
-                values.update({f"noise_learned.{k}": v for k, v in learned.items() if k not in ("enabled", "learning")})
-            if node.fleet_mode:                         # each robot's ESS, stamp, learned noise, inputs
-                values.update(slam.robot_diagnostics())
-                values.update({f"inputs.{robot}": count for robot, count in inputs.received().items()})
-            if node.segment_link is not None:             # distributed fleet mode: segments.*
-                values.update(node.segment_link.diagnostics())
-            values.update({f"dropped.{reason}": count for reason, count in sorted(drops.items())})
-            values.update({f"decided.{reason}": count for reason, count in sorted(decided.items())})
-            values.update({f"corrected.{reason}": count for reason, count in sorted(inputs.corrected.items())})
-            values.update(inputs.frames.diagnostics())      # unexpected_frame.*, unexpected_child_frame.*
-            level, message = DiagnosticStatus.OK, f"{len(landmarks)} landmarks"
-            if node.paused:
-                level, message = DiagnosticStatus.WARN, "paused"
-            elif total > self.drops_reported:
-                level = DiagnosticStatus.WARN
-                message += f", {total - self.drops_reported} inputs dropped in the last {span:.1f} s"
-            elif self.updates == 0:
-                message = "waiting for observations"
-            level, message = self._silent_inputs(inputs, level, message)
-            self.drops_reported = total
-            self.window_start, self.window_updates, self.window_inputs = now, 0, 0
-            self.latencies = []
-            self.queue_wait_max = 0.0
-            stamp = node.now_sec()
-            if stamp <= 0.0 and slam.last_stamp is not None:
-                stamp = slam.last_stamp
-            status = DiagnosticStatus(
-                level=level, name=f"{node.get_name()}: online EM SLAM", message=message,
-                hardware_id=node.get_fully_qualified_name(),
-                values=[KeyValue(key=k, value=(f"{v:.6g}" if isinstance(v, float) else str(v)))
-                        for k, v in values.items()])
-            self.publisher.publish(DiagnosticArray(header=Header(stamp=conv.sec_to_stamp(stamp)),
-                                                   status=[status]))
+            values = self._values(now, span, drops, decided)
+            level, message = self._level(span, sum(drops.values()), values["landmarks"])
+            self.drops_reported = sum(drops.values())
+            self._restart_window(now)
+            self.publisher.publish(DiagnosticArray(header=Header(stamp=conv.sec_to_stamp(self._stamp())),
+                                                   status=[self._status(level, message, values)]))
+
+    def _values(self, now: float, span: float, drops: dict, decided: dict) -> dict:
+        """Every key of the status: the window's rates and latencies, the estimator's state, the
+        learned noise, a fleet's per-robot values, and the counts by reason."""
+        node, slam, inputs = self.node, self.node.slam, self.node.inputs
+        latencies = np.asarray(self.latencies) if self.latencies else np.zeros(0)
+        landmarks = slam.landmarks()
+        values = {
+            "update_rate_hz": self.window_updates / span,
+            "input_rate_hz": self.window_inputs / span,
+            "latency_mean_ms": 1e3 * float(latencies.mean()) if latencies.size else 0.0,
+            "latency_max_ms": 1e3 * float(latencies.max()) if latencies.size else 0.0,
+            "queue_wait_max_ms": 1e3 * self.queue_wait_max,
+            "queue_wait_peak_ms": 1e3 * self.queue_wait_peak,
+            "ess": self.last_ess if math.isfinite(self.last_ess) else float(node.config.filter.num_particles),
+            "num_particles": slam.config.filter.num_particles,
+            "landmarks": len(landmarks),
+            "confirmed_landmarks": int(np.count_nonzero(landmarks.confirmed)),
+            "observation_updates": self.updates,
+            "inputs": self.inputs,
+            "queued_inputs": len(inputs.pipeline),
+            "load": inputs.pipeline.current_load(now),
+            "load_max": inputs.pipeline.max_load,
+            "paused": node.paused,
+            "resets": self.resets,
+            "last_stamp": slam.last_stamp if slam.last_stamp is not None else -1.0,
+            "dropped_total": sum(drops.values()),
+            "decided_total": sum(decided.values()),
+        }
+        learned = slam.learned_noise()              # noise learned online (core/em/noise/)
+        if learned["enabled"]:
+            values.update({f"noise_learned.{k}": v for k, v in learned.items() if k not in ("enabled", "learning")})
+        if node.fleet_mode:                         # each robot's ESS, stamp, learned noise, inputs
+            values.update(slam.robot_diagnostics())
+            values.update({f"inputs.{robot}": count for robot, count in inputs.received().items()})
+        if node.segment_link is not None:           # distributed fleet mode: segments.*
+            values.update(node.segment_link.diagnostics())
+        values.update({f"dropped.{reason}": count for reason, count in sorted(drops.items())})
+        values.update({f"decided.{reason}": count for reason, count in sorted(decided.items())})
+        values.update({f"corrected.{reason}": count for reason, count in sorted(inputs.corrected.items())})
+        values.update(inputs.frames.diagnostics())  # unexpected_frame.*, unexpected_child_frame.*
+        return values
+
+    def _level(self, span: float, dropped: int, landmarks: int) -> tuple[int, str]:
+        """(level, message): WARN while paused or when inputs were dropped in the window, then
+        what the input streams' silence adds (:meth:`_silent_inputs`)."""
+        level, message = DiagnosticStatus.OK, f"{landmarks} landmarks"
+        if self.node.paused:
+            level, message = DiagnosticStatus.WARN, "paused"
+        elif dropped > self.drops_reported:
+            level = DiagnosticStatus.WARN
+            message += f", {dropped - self.drops_reported} inputs dropped in the last {span:.1f} s"
+        elif self.updates == 0:
+            message = "waiting for observations"
+        return self._silent_inputs(self.node.inputs, level, message)
+
+    def _restart_window(self, now: float) -> None:
+        self.window_start, self.window_updates, self.window_inputs = now, 0, 0
+        self.latencies = []
+        self.queue_wait_max = 0.0
+
+    def _stamp(self) -> float:
+        """The node's clock, or the estimator's last stamp while the clock is at zero (sim time
+        before /clock)."""
+        stamp, last = self.node.now_sec(), self.node.slam.last_stamp
+        return last if stamp <= 0.0 and last is not None else stamp
+
+    def _status(self, level: int, message: str, values: dict) -> DiagnosticStatus:
+        node = self.node
+        return DiagnosticStatus(
+            level=level, name=f"{node.get_name()}: online EM SLAM", message=message,
+            hardware_id=node.get_fully_qualified_name(),
+            values=[KeyValue(key=k, value=(f"{v:.6g}" if isinstance(v, float) else str(v))) for k, v in values.items()])
