@@ -32,6 +32,33 @@ def test_a_one_robot_fleet_replays_its_warmup_as_the_single_robot_does():
     assert single.learned_noise() == fleet.robot(0).learned_noise()
 
 
+def test_a_one_robot_fleet_replays_as_its_inputs_grow_as_the_single_robot_does():
+    """With replay_growth the fleet filters its kept inputs again each time they have grown
+    g-fold, as a single robot does (filter/warmup.py): the same replays, the same map."""
+    scenario = simulate(ScenarioConfig(seed=2, n_steps=1200, outlier_probability=0.1, **TRUTH))
+    config = _learning(scenario, replay_growth=1.25)
+    single = OnlineEMSlam(config, initial_pose=scenario.initial_pose, stamp=0.0)
+    for step in scenario.steps:
+        feed(single, step)
+    fleet = _run_fleet([scenario], config)
+    assert single.learned_noise()["replays"] == fleet.robot(0).learned_noise()["replays"] >= 2
+    assert fleet._warmup_log is not None and len(fleet._warmup_log) == len(single._warmup.inputs)
+    a, b = single.landmarks(), fleet.landmarks()
+    for name in ("ids", "positions", "covariances", "n_obs", "confirmed"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert single.learned_noise() == fleet.robot(0).learned_noise()
+
+
+def test_two_robots_replay_again_as_their_inputs_grow():
+    scenarios = fleet_scenarios(ScenarioConfig(n_steps=1200, seed=0, outlier_probability=0.1, **TRUTH), 2)
+    once = _run_fleet(scenarios, _learning(scenarios[0]))
+    grown = _run_fleet(scenarios, _learning(scenarios[0], replay_growth=1.25))
+    assert [once.robot(r).learned_noise()["replays"] for r in range(2)] == [1, 1]
+    counts = [grown.robot(r).learned_noise()["replays"] for r in range(2)]
+    assert counts[0] == counts[1] >= 2
+    assert grown.drops == once.drops
+
+
 def test_the_fleet_replays_once_every_robot_has_its_learned_values_in_use(monkeypatch):
     """Two robots: nothing is replayed while one robot still runs on configured values; then
     once, every robot held at its learned values through the replay; drops counted once."""

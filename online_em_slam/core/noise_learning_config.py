@@ -109,7 +109,7 @@ class NoiseLearningConfig:
     replay_growth: float = param(0.0, 0.0, 100.0, doc="After the warm-up replay, filter the kept inputs "
                                  "again from the start each time they have grown by this factor since the last "
                                  "replay started (0: never; otherwise above 1; g / (g - 1) passes over the inputs "
-                                 "in all). One robot; a fleet replays its warm-up once.")
+                                 "in all). A fleet replays all its robots' inputs together, as they grow.")
     max_replay_inputs: int = param(100000, 0, 10 ** 7, doc="Inputs kept for the warm-up replay (per robot "
                                    "in fleet mode); a longer warm-up is not replayed.")
     motion_window: int = param(10, 1, 1000, doc="Filter steps over which the pose is predicted open loop for "

@@ -62,7 +62,8 @@ class FleetSlam:
         replay = config.noise_learning.replay_warmup and bool(self._robots[0]._noise.learn)
         self._start_stamp = stamp
         self.replay_in_slices = False       # a live node's choice (OnlineEMSlam.replay_in_slices)
-        self._warmup = FleetWarmupReplay(replay, config.noise_learning.max_replay_inputs * len(poses), poses.copy())
+        self._warmup = FleetWarmupReplay(replay, config.noise_learning.max_replay_inputs * len(poses), poses.copy(),
+                                         growth=config.noise_learning.replay_growth)
         for robot in self._robots:
             robot.fleet_warmup = self._warmup
 

@@ -7,7 +7,9 @@ would count its warm-up twice.  So the fleet keeps the inputs of all robots in t
 it received them; once every robot's noise learner has every learned value in use, a new
 fleet starts (an empty map, every robot at its start pose), each learner from its
 learned values, held through the warm-up, and is fed the kept inputs in their order
-(all at once, or in slices as filter/warmup.py describes) until it takes over.  Once.
+(all at once, or in slices as filter/warmup.py describes) until it takes over.  Once, or
+with ``growth`` g > 1 (``replay_growth``) again each time the kept inputs have grown g-fold
+since the last replay started, as a single robot's replays do.
 """
 from __future__ import annotations
 
@@ -22,8 +24,13 @@ class FleetWarmupReplay(WarmupReplay):
     replay.  ``start`` is the robots' start poses (R, 3)."""
 
     def due(self, robots) -> bool:
-        """Inputs are kept, no replay runs, and every robot's learner has every learned quantity in use."""
-        return self.inputs is not None and self.replaying is None and all(r._noise.all_in_use for r in robots)
+        """Inputs are kept, no replay runs, and every robot's learner has every learned quantity in
+        use; after that replay, the inputs have grown ``growth``-fold since the last one started."""
+        if self.inputs is None or self.replaying is not None:
+            return False
+        if self.replayed:
+            return self.growth > 1.0 and len(self.inputs) >= self.growth * self._warmup_length
+        return all(r._noise.all_in_use for r in robots)
 
     def _restarted(self, fleet):
         learned = [learned_start(robot._noise) for robot in fleet._robots]
@@ -56,7 +63,14 @@ class FleetWarmupReplay(WarmupReplay):
         drops = [robot.drops for robot in fleet._robots]
         fleet.__dict__.clear()
         fleet.__dict__.update(replayed.__dict__)
+        self.replays += 1
         for robot, counts in zip(fleet._robots, drops):
             robot.drops = robot._input.drops = counts       # the motion input counts into it too
-            robot._warmup.replayed, robot._warmup.replays = True, 1   # reported per robot (learned_noise)
-        fleet._warmup.replayed, fleet._warmup.replays = True, 1
+            robot._warmup.replayed, robot._warmup.replays = True, self.replays   # reported per robot (learned_noise)
+        if self.growth > 1.0:           # the kept inputs go on, to be filtered again as they grow
+            self.replaying, self.replayed = None, True
+            fleet._warmup = self
+            for robot in fleet._robots:
+                robot.fleet_warmup = self
+            return
+        fleet._warmup.replayed, fleet._warmup.replays = True, self.replays
