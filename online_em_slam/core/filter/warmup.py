@@ -17,7 +17,7 @@ With ``growth`` g > 1 (``replay_growth``) the inputs are kept on after that and 
 from the start each time they have grown g-fold since the last replay started: values that came
 into use at a transient (a motion gain decided just before the warm-up replay) leave their mark
 on the map only until the next replay (docs/METHOD.md, "Replays as the inputs grow").
-A fleet (core/fleet/warmup.py) replays its warm-up once.
+A fleet (core/fleet/warmup.py) replays all its robots' inputs together, in the same way.
 
 Offline the new estimator is fed everything at once, inside the input that made the
 replay due.  A live node cannot stop that long (a fleet's replay on MRCLAM is most

@@ -116,7 +116,7 @@ class FleetSlam:
     def add_observations(self, robot: int, stamp: float, observations: Observations) -> StepReport:
         """Robot ``robot``'s scan: one filter step of its filter, its segment's factors to the
         shared map, the map solved at its segment end (OnlineEMSlam.add_observations); the
-        fleet's warm-up replay once it is due."""
+        fleet's replay once one is due (core/fleet/warmup.py)."""
         filter_ = self.robot(robot)
         self._warmup.record("add_observations", stamp, (robot, observations))
         report = filter_.add_observations(stamp, observations)
