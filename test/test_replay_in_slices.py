@@ -52,6 +52,22 @@ def test_a_fleet_replay_in_slices_ends_where_the_replay_at_once_does():
         assert fleets[1].robot(r).learned_noise()["warmup_replayed"]
 
 
+def test_a_fleets_replays_as_its_inputs_grow_in_slices_end_where_those_at_once_do():
+    scenario = simulate(ScenarioConfig(seed=2, n_steps=1200, outlier_probability=0.1, **TRUTH))
+    config = _learning(scenario, replay_growth=1.25)
+    fleets = [FleetSlam(config, [scenario.initial_pose], stamp=0.0) for _ in range(2)]
+    fleets[1].replay_in_slices = True
+    for step in scenario.steps:
+        for fleet in fleets:
+            feed(_Robot(fleet, 0), step)
+        fleets[1].advance_replay(64)
+    while fleets[1].advance_replay(64):
+        pass
+    assert fleets[0].robot(0).learned_noise()["replays"] == fleets[1].robot(0).learned_noise()["replays"] >= 2
+    _same_map(fleets[0].landmarks(), fleets[1].landmarks())
+    assert np.array_equal(fleets[0].particles(0)[0], fleets[1].particles(0)[0])
+
+
 def test_a_pose_set_while_the_replay_catches_up_ends_it():
     scenario = simulate(ScenarioConfig(seed=2, n_steps=700, outlier_probability=0.1, **TRUTH))
     sliced = OnlineEMSlam(_learning(scenario), initial_pose=scenario.initial_pose, stamp=0.0)
