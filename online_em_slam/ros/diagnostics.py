@@ -96,8 +96,8 @@ class Diagnostics:
             span = max(now - self.window_start, 1e-6)
             drops, decided = split_decisions(node.all_drops())
             values = self._values(now, span, drops, decided)
-            level, message = self._level(span, sum(drops.values()), values["landmarks"])
-            self.drops_reported = sum(drops.values())
+            level, message = self._level(span, values["dropped_total"], values["landmarks"])
+            self.drops_reported = values["dropped_total"]
             self._restart_window(now)
             self.publisher.publish(DiagnosticArray(header=Header(stamp=conv.sec_to_stamp(self._stamp())),
                                                    status=[self._status(level, message, values)]))

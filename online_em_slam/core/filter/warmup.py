@@ -93,8 +93,12 @@ class WarmupReplay:
         if self.replayed:               # kept for the serial decay's replay, or for growth
             if self._serial_pending:    # set when the warm-up replay started, cleared by the next
                 return learner.serial_known
-            return self.growth > 1.0 and len(self.inputs) >= self.growth * self._warmup_length
+            return self.grown()
         return learner.all_in_use or (self.calibrate and not self.calibrated and learner.calibration_in_use)
+
+    def grown(self) -> bool:
+        """The kept inputs have grown ``growth``-fold since the last replay started (growth on)."""
+        return self.growth > 1.0 and len(self.inputs) >= self.growth * self._warmup_length
 
     def replay(self, estimator, in_slices: bool = False) -> None:
         """Start the replay for ``estimator``: all of it now, or (``in_slices``) in :meth:`advance`.

@@ -29,7 +29,7 @@ class FleetWarmupReplay(WarmupReplay):
         if self.inputs is None or self.replaying is not None:
             return False
         if self.replayed:
-            return self.growth > 1.0 and len(self.inputs) >= self.growth * self._warmup_length
+            return self.grown()
         return all(r._noise.all_in_use for r in robots)
 
     def _restarted(self, fleet):
