@@ -64,7 +64,15 @@ def test_last_sightings_recall_what_a_dictionary_would():
         table.record(ids, values)
         for i, row in zip(ids.tolist(), values):
             reference[i] = tuple(row)                    # an id twice: its last row
-    assert np.all(np.diff(table.ids) > 0)
+    assert np.all(np.diff(table.ids) > 0) and table.ids.size == len(reference)
+
+
+def test_last_sightings_take_any_integer_ids_and_keep_an_ids_last_row():
+    table = LastSightings(1)
+    table.record(np.array([2 ** 40, -3, 2 ** 40]), np.array([[1.0], [2.0], [3.0]]))
+    np.testing.assert_array_equal(table.recall(np.array([-3, 2 ** 40, 7])), [[2.0], [3.0], [np.nan]])
+    table.record(np.arange(100), np.arange(100.0)[:, None])          # grows past its first rows
+    np.testing.assert_array_equal(table.recall(np.array([99, -3])), [[99.0], [2.0]])
 
 
 def test_the_fit_recovers_an_exact_decay():
