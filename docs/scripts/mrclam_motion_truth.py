@@ -8,6 +8,9 @@ left out. Per run: the least-squares gain of the true yaw rate on the commanded 
 gain of the windows turning in place (commanded speed below 1 cm/s) and while driving.
 
     python docs/scripts/mrclam_motion_truth.py [--data-dir ../shared/datasets/mrclam] [--seconds 600]
+
+``--turns D R T0 T1 ...`` instead prints, for dataset D robot R, the turn commanded (the yaw
+rate's integral) and made (Vicon's, glitches left out) between consecutive times T (s).
 """
 import argparse
 from pathlib import Path
@@ -50,11 +53,39 @@ def gain_of(true, cmd):
     return f"{np.sum(true[turning] * cmd[turning]) / np.sum(cmd[turning] ** 2):.2f}"
 
 
+def turns(run, times):
+    """Rows (start, end, commanded turn, Vicon's turn) between consecutive ``times`` (s)."""
+    t, w = run.odometry_times, run.odometry_w
+    gt, yaw = run.ground_truth_times, run.ground_truth_poses[:, 2]
+    step = wrap(np.diff(yaw))
+    step[np.abs(step) / np.diff(gt) >= MAX_RATE] = 0.0
+    made = np.concatenate([[0.0], np.cumsum(step)])
+    rows = []
+    for a, b in zip(times[:-1], times[1:]):
+        m = (t >= a) & (t < b)
+        commanded = float(np.sum(w[m] * np.gradient(t)[m]))
+        rows.append((a, b, commanded, float(np.interp(b, gt, made) - np.interp(a, gt, made))))
+    return rows
+
+
+def print_turns(data_dir: Path, dataset: int, robot: int, times: list[float]) -> None:
+    run = load_mrclam(dataset_source(data_dir, dataset), robot, seconds=max(times))
+    print("| from (s) | to (s) | commanded (rad) | made (rad) | made / commanded |\n|---|---|---|---|---|")
+    for a, b, commanded, made in turns(run, times):
+        ratio = f"{made / commanded:.2f}" if abs(commanded) > 1e-3 else "-"
+        print(f"| {a:g} | {b:g} | {commanded:.3f} | {made:.3f} | {ratio} |")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data-dir", default="../shared/datasets/mrclam")
     parser.add_argument("--seconds", type=float, default=600.0)
+    parser.add_argument("--turns", type=float, nargs="+", metavar="D R T",
+                        help="dataset, robot and times (s): the turns made between the times")
     args = parser.parse_args()
+    if args.turns:
+        print_turns(Path(args.data_dir), int(args.turns[0]), int(args.turns[1]), args.turns[2:])
+        return
     print("| run | yaw-rate gain | residual sd (rad/s) | kurtosis | Vicon yaw glitches | gain in place / driving |")
     print("|---|---|---|---|---|---|")
     for d in (1, 9):
