@@ -3,6 +3,7 @@ new map once every robot's learned noise is in use."""
 import numpy as np
 
 from online_em_slam.core import FleetSlam, OnlineEMSlam
+from online_em_slam.core.config import NoiseLearningConfig, replace_section
 from online_em_slam.core.em.noise.learner import NoiseLearner
 from online_em_slam.experiments.simulation import ScenarioConfig, feed, fleet_scenarios, simulate, slam_config_for
 from test_fleet import _Robot, _run_fleet
@@ -106,3 +107,21 @@ def test_after_the_fleets_replay_a_bad_motion_input_is_still_counted():
     before = fleet.drops["non_finite_control"]
     fleet.add_control(1, scenarios[1].steps[-1].stamp + 0.1, np.array([np.nan, 0.0]))
     assert fleet.drops["non_finite_control"] == before + 1
+
+
+def test_a_one_robot_fleet_started_at_the_learned_values_does_not_replay_as_the_single_robot():
+    """Started at its truth (Gaussian noise), the single robot finds its warm-up replay needless
+    (core/em/noise/start_difference.py); a one-robot fleet decides the same, bit for bit."""
+    scenario = simulate(ScenarioConfig(seed=1, n_steps=800))
+    config = replace_section(slam_config_for(scenario, num_particles=30, seed=0),
+                             noise_learning=NoiseLearningConfig(enabled=True))
+    single = OnlineEMSlam(config, initial_pose=scenario.initial_pose, stamp=0.0)
+    for step in scenario.steps:
+        feed(single, step)
+    fleet = _run_fleet([scenario], config)
+    for learned in (single.learned_noise(), fleet.robot(0).learned_noise()):
+        assert learned["warmup_replay_needless"] and not learned["warmup_replayed"]
+    assert fleet._warmup_log is None and single.learned_noise() == fleet.robot(0).learned_noise()
+    a, b = single.landmarks(), fleet.landmarks()
+    for name in ("ids", "positions", "covariances", "n_obs"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name

@@ -102,7 +102,9 @@ class NoiseLearningConfig:
                                           "once its relative standard error is below this (and warmup_steps "
                                           "have passed): a short run's estimate can be several times off.")
     replay_warmup: bool = param(True, doc="Once every learned quantity is in use, filter the warm-up's inputs "
-                                "again from the start with the learned noise (once; the pose may jump then).")
+                                "again from the start with the learned noise (once; the pose may jump then), "
+                                "unless the data cannot tell the learned values from those the warm-up "
+                                "began under (a chi-square test at 0.95; docs/METHOD.md).")
     replay_on_calibration: bool = param(True, doc="With motion_gains learned: once a motion gain comes into "
                                         "use before the warm-up replay, filter the inputs so far again from the "
                                         "start with it (once; the pose may jump then).")

@@ -429,8 +429,8 @@ class OnlineEMSlam:
 
     def learned_noise(self) -> dict:
         """Noise values learned online (em/noise/learner.py): estimates, counts, and whether in use."""
-        return {**self._noise.learned(), "warmup_replayed": self._warmup.replayed,
-                "calibration_replayed": self._warmup.calibrated, "replays": self._warmup.replays}
+        return {**self._noise.learned(), "warmup_replayed": self._warmup.replayed, "replays": self._warmup.replays,
+                "calibration_replayed": self._warmup.calibrated, "warmup_replay_needless": self._warmup.needless}
 
     def learned_noise_parameters(self) -> dict:
         """The noise in use as flat node parameters (noise.*, motion.* stds), for a parameter file."""

@@ -68,6 +68,7 @@ class WarmupReplay:
         self._warmup_length = 0         # the inputs up to the one that made the replay due
         self.growth = growth            # replay again once the kept inputs grew by this factor (> 1)
         self.replays = 0                # replays taken over so far, of every kind (learned_noise reports it)
+        self.needless = False           # every value came into use where the warm-up began: no replay
 
     def record(self, method: str, stamp: float, value) -> None:
         """One input as the estimator received it (its method name, stamp and value)."""
@@ -87,14 +88,25 @@ class WarmupReplay:
     def due(self, learner) -> bool:
         """Inputs are kept, no replay runs, and every quantity the noise learner learns is in use,
         or (the calibration replay, once) a learned motion gain is; after the warm-up replay, the
-        serial decay is known (once) or the inputs have grown ``growth``-fold since the last."""
+        serial decay is known (once) or the inputs have grown ``growth``-fold since the last.
+        Every value in use where the warm-up began (the data cannot tell them apart): :meth:`skip`."""
         if self.inputs is None or self.replaying is not None:
             return False
         if self.replayed:               # kept for the serial decay's replay, or for growth
             if self._serial_pending:    # set when the warm-up replay started, cleared by the next
                 return learner.serial_known
             return self.grown()
+        if learner.all_in_use and not learner.differs_from_start():
+            self.skip()
+            return False
         return learner.all_in_use or (self.calibrate and not self.calibrated and learner.calibration_in_use)
+
+    def skip(self) -> None:
+        """The learned values came into use and the data cannot tell them from those the warm-up
+        began under (NoiseLearner.differs_from_start): filtered again, the warm-up would be drawn
+        again, not filtered better.  No replay, and none as the inputs grow."""
+        self.discard()
+        self.needless = True
 
     def grown(self) -> bool:
         """The kept inputs have grown ``growth``-fold since the last replay started (growth on)."""

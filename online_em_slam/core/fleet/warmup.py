@@ -25,12 +25,20 @@ class FleetWarmupReplay(WarmupReplay):
 
     def due(self, robots) -> bool:
         """Inputs are kept, no replay runs, and every robot's learner has every learned quantity in
-        use; after that replay, the inputs have grown ``growth``-fold since the last one started."""
+        use (and some robot's differ from those its warm-up began under: else :meth:`skip`); after
+        that replay, the inputs have grown ``growth``-fold since the last one started."""
         if self.inputs is None or self.replaying is not None:
             return False
         if self.replayed:
             return self.grown()
-        return all(r._noise.all_in_use for r in robots)
+        if not all(r._noise.all_in_use for r in robots):
+            return False
+        if not any(r._noise.differs_from_start() for r in robots):
+            self.skip()
+            for robot in robots:
+                robot._warmup.needless = True       # reported per robot (learned_noise)
+            return False
+        return True
 
     def _restarted(self, fleet):
         learned = [learned_start(robot._noise) for robot in fleet._robots]

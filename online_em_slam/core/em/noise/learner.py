@@ -11,23 +11,10 @@ averaged by stochastic approximation (S <- S + gamma_n (s_t - S),
 gamma_n = n^-alpha) and the M-step below maps the averages to parameter values,
 held between a floor and a ceiling.  The estimator uses them after a warm-up.
 
-The observation statistics (E) and the dof and mixture M-steps are in
-observation.py, the range noise fit in range_fit.py, the serial correlation in
-serial_correlation.py; the learner blends them and runs the M-step.
-
-Motion statistic (M), per scan at t: the pose predicted open loop over the
-last L filter steps from the posterior at t - L, x_pred = xbar_t + C with
-C = sum_k Phi(t, k) c_k the compounded motion residuals c_k = f(xbar_{k-1}) - xbar_k
-of section 6, gives the scan's prediction error nu = nubar_t - H_x C.  Its
-covariance is K + s G, G = H_x Q_L H_x^T the motion noise over the window at
-scale 1 and K = H_x Phi P_{t-L} Phi^T H_x^T + R (1 + 1/(n_k - 1)) the rest, so
-
-    s = sum_t (nu^T W nu - tr(W K)) / sum_t tr(W G)                           (M)
-
-(W = S^-1 G S^-1).  A prediction error is not pulled towards the scale the
-filter assumed (EM's posterior residuals are, and approach the truth by a
-fraction per pass only: one step's motion noise is small next to the pose's
-uncertainty, so most of its information is missing).
+The observation statistics (E) and the dof and mixture M-steps are in observation.py, the
+range noise fit in range_fit.py, the serial correlation in serial_correlation.py, the motion
+scale's statistic (M) in motion_noise.py; the learner blends them and runs the M-step.
+start_difference.py says whether the data tell the learned values from the warm-up's.
 """
 from __future__ import annotations
 
@@ -51,6 +38,7 @@ from .motion_noise import (MotionWindow, absolute_error, group_scales, predictio
 from .observation import UsedObservations, mixture_m_step, observation_statistics, student_t_dof
 from .range_fit import RangeBins, range_noise_fit
 from .serial_correlation import SerialStatistic, pose_free, whitened
+from .start_difference import WITHOUT_ERROR, differs, gain_scores, motion_scale_score, observation_scores
 
 MOTION_QUANTITIES = frozenset({"motion_scale", "motion_gains", "motion_delay", "motion_drift", "motion_shape"})
 # The calibration of the motion input (motion_gains.py): gains, the turn per metre, the drive's dead time.
@@ -106,6 +94,7 @@ class NoiseLearner:
         self.gains_in_use = np.array([gain(config.motion, name) for name in self.gain_names])
         self.sensitivities = np.zeros((self.settings.motion_window + 1, 3, len(self.gain_names)))
         self.gains_estimate, self.gain_errors = self.gains_in_use.copy(), np.full(len(self.gain_names), math.inf)
+        self._motion_start = (1.0, self.gains_in_use.copy())   # the motion scale and gains the warm-up begins at
         self._gain_warm = np.zeros(len(self.gain_names), dtype=bool)   # each in use once known to the tolerance
         self._motion_config = (None, None)                # (gains and scales, the motion config with them)
         self._weighed = (None, None)                      # (the noise in use, its information_noise)
@@ -150,6 +139,7 @@ class NoiseLearner:
         if self.gains is not None and motion_gains is not None:
             self.gains_in_use = np.clip(np.asarray(motion_gains, dtype=float), *self._gain_limits)
             self.gains_estimate = self.gains_in_use.copy()
+        self._motion_start = (self.scale_in_use, self.gains_in_use.copy())
 
     def saved_values(self) -> dict[str, np.ndarray] | None:
         """The values in use for a map file (None when nothing is learned)."""
@@ -176,6 +166,19 @@ class NoiseLearner:
             not self.shape or self._shape_warm)
         gains = self.gains is None or self.calibration_in_use       # the warm-up is re-filtered with them
         return bool(self.learn) and observation and motion and gains
+
+    def differs_from_start(self) -> bool:
+        """The data tell the learned values from those the warm-up began under (start_difference.py)."""
+        if self.learn & WITHOUT_ERROR:
+            return True
+        scores = observation_scores(self.learn, self._in_use, self._start, self.observations.squared_weights,
+                                    self.serial.average.squared_weights)
+        if "motion_scale" in self.learn:
+            scores.append(motion_scale_score(self.scale_estimate, self._motion_start[0], self.motion.value,
+                                             self.motion.squared_weights, self.settings.motion_window))
+        if self.gains is not None:
+            scores += gain_scores(self.gains_known(), self._motion_start[1], self.gain_errors)
+        return differs(scores)
 
     @property
     def serial_known(self) -> bool:
