@@ -116,3 +116,9 @@ def test_a_warmup_begun_at_the_learned_values_is_not_replayed():
         assert np.array_equal(getattr(skipped.landmarks(), name), getattr(plain.landmarks(), name)), name
     started_wrong = _run(1, 3.0).learned_noise()
     assert started_wrong["warmup_replayed"] and not started_wrong["warmup_replay_needless"]
+
+
+def test_a_dof_without_information_cannot_be_told_apart():
+    """At a dof so large that its information rounds away, a change says nothing: z = 0."""
+    start = ObservationNoiseConfig(model="student_t", dof=1e300)
+    assert observation_scores({"dof"}, replace(start, dof=5.0), start, 0.01, 0.0) == [0.0]

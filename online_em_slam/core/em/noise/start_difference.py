@@ -88,7 +88,8 @@ def observation_scores(learn: frozenset | set, noise: ObservationNoiseConfig, st
         spread = math.sqrt(q * ((start.sigma_range * start.sigma_bearing) ** 2 + start.rho ** 2))
         scores.append(z_score(noise.rho - start.rho, spread))
     if "dof" in learn:
-        scores.append(z_score(noise.dof - start.dof, math.sqrt(q / dof_information(start.dof))))
+        information = dof_information(start.dof)        # > 0 to a dof of 1e5; rounding could reach 0
+        scores.append(z_score(noise.dof - start.dof, math.sqrt(q / information) if information > 0 else math.inf))
     if "serial_correlation" in learn:
         for c, c0 in zip(noise.serial_correlation, start.serial_correlation):
             scores.append(z_score(c - c0, (1.0 - c0 * c0) * math.sqrt(q_pairs)))
