@@ -2,8 +2,9 @@
 "Noise learned online", warm-up replay).
 
 The warm-up replay filters the warm-up again under the learned values.  When the data cannot
-tell those from the values the warm-up ran under (a robot restarted with the noise.yaml of an
-earlier run, a simulation started at its truth), the second pass draws the first again: on
+tell those from the values the warm-up ran under (a simulation started at its truth; a Car
+Park run restarted from its own noise.yaml still differs, its sigmas 6-8 standard errors
+lower at the decision), the second pass draws the first again: on
 the seed scenario started at its truth (20 seeds) the replay moved the landmark RMSE by
 -0.04 +- 0.12 m and the shape by +0.003 +- 0.004 m, at the price of a second pass over the
 warm-up.  Each learned value gives z = (learned - start) / its standard error under the
