@@ -60,10 +60,11 @@ def turns(run, times):
     step = wrap(np.diff(yaw))
     step[np.abs(step) / np.diff(gt) >= MAX_RATE] = 0.0
     made = np.concatenate([[0.0], np.cumsum(step)])
+    turned = w * np.gradient(t)                     # the commanded turn of each odometry sample
     rows = []
     for a, b in zip(times[:-1], times[1:]):
         m = (t >= a) & (t < b)
-        commanded = float(np.sum(w[m] * np.gradient(t)[m]))
+        commanded = float(np.sum(turned[m]))
         rows.append((a, b, commanded, float(np.interp(b, gt, made) - np.interp(a, gt, made))))
     return rows
 

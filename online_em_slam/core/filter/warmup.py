@@ -96,10 +96,11 @@ class WarmupReplay:
             if self._serial_pending:    # set when the warm-up replay started, cleared by the next
                 return learner.serial_known
             return self.grown()
-        if learner.all_in_use and not learner.differs_from_start():
+        in_use = learner.all_in_use
+        if in_use and not learner.differs_from_start():
             self.skip()
             return False
-        return learner.all_in_use or (self.calibrate and not self.calibrated and learner.calibration_in_use)
+        return in_use or (self.calibrate and not self.calibrated and learner.calibration_in_use)
 
     def skip(self) -> None:
         """The learned values came into use and the data cannot tell them from those the warm-up
