@@ -396,7 +396,7 @@ def test_motion_scale_is_learned_from_9x_off_in_variance(runs, factor):
     """From 9x and 1/9x the truth to within 15 % on this seed (0.90 and 0.91).  One run's
     estimate spreads: over 80 seeds its mean is 0.97 and 0.96 of the truth with a standard
     deviation of 0.11, and 20 of the 80 runs end more than 15 % off; the Cramer-Rao bound of
-    such a run is 0.076 (docs/RESULTS.md, fifth pass)."""
+    such a run is 0.076 (docs/RESULTS.md, "Noise learned online")."""
     _, slams = runs
     assert true_motion_scale(slams[factor], factor) == pytest.approx(1.0, rel=0.15)
 
