@@ -60,6 +60,8 @@ def test_run_writes_outputs_and_is_deterministic(car_park_bag, tmp_path):
     # sanity of the tuned configuration (loose bounds: the report gives the measured values)
     assert m["landmarks"]["n_matched"] >= 13 and m["landmarks"]["rmse"] < 1.0
     assert m["trajectory"]["median"] < 1.5
+    # the replays filtered the past again: that trajectory scored too, and written for evo
+    assert m["trajectory_revised"]["rmse"] < 1.5 and (out_a / "trajectory_revised.tum").exists()
     rows = (out_a / "trajectory.csv").read_text().splitlines()
     assert len(rows) - 1 == m["n_observation_messages"]      # one pose per observation message (586)
 

@@ -31,6 +31,7 @@ def test_a_one_robot_fleet_replays_its_warmup_as_the_single_robot_does():
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
     assert np.array_equal(single.particles()[0], fleet.particles(0)[0])
     assert single.learned_noise() == fleet.robot(0).learned_noise()
+    assert np.array_equal(single.revised_trajectory(), fleet.revised_trajectory(0))     # the replay's poses
 
 
 def test_a_one_robot_fleet_replays_as_its_inputs_grow_as_the_single_robot_does():
@@ -57,6 +58,9 @@ def test_two_robots_replay_again_as_their_inputs_grow():
     counts = [grown.robot(r).learned_noise()["replays"] for r in range(2)]
     assert counts[0] == counts[1] >= 2
     assert grown._warmup_log is not None and grown._warmup.replaying is None
+    for r, scenario in enumerate(scenarios):          # each robot's poses from its first scan on
+        revised = grown.revised_trajectory(r)
+        assert revised[0, 0] == scenario.steps[0].stamp and np.all(np.diff(revised[:, 0]) > 0)
 
 
 def test_the_fleet_replays_once_every_robot_has_its_learned_values_in_use(monkeypatch):

@@ -39,8 +39,9 @@ from ..pipeline import OBSERVATIONS
 from ..pipeline.fleet import FleetPipeline
 from .evaluation import DEFAULT_MATCH_GATE, timing_metrics
 from .frames import check_frame
-from .runner import BagInputs, FailureLog, RunResult, choose_initial_pose, read_inputs, truth_start
-from .tum import write_run_tum
+from .runner import (BagInputs, FailureLog, RunResult, choose_initial_pose, read_inputs, revised_trajectory,
+                     truth_start)
+from .tum import write_revised_tum, write_run_tum
 
 NAMESPACE = re.compile(r"^(/robot\d+)/")
 
@@ -155,9 +156,10 @@ def run_fleet(inputs: FleetInputs, config: SlamConfig, settings, initial: list, 
     for r, (name, robot_inputs, track) in enumerate(zip(inputs.names, inputs.robots, tracks)):
         skipped = {k: int(v) for k, v in pipeline.drops(r).items() if v}
         skipped.update({k: int(v) for k, v in refused[r].items() if v})
-        result = RunResult("online_em_fleet", np.asarray(track.rows, dtype=float).reshape(-1, 4), landmarks,
-                           track.durations, busy, track.duration, dict(fleet.robot(r).drops), skipped,
-                           track.n_obs_msgs, track.known_ids, track.failures)
+        published = np.asarray(track.rows, dtype=float).reshape(-1, 4)
+        result = RunResult("online_em_fleet", published, landmarks, track.durations, busy, track.duration,
+                           dict(fleet.robot(r).drops), skipped, track.n_obs_msgs, track.known_ids, track.failures,
+                           revised_trajectory(fleet.revised_trajectory(r), published))
         frame = check_frame(initial[r], truth_start(robot_inputs, config), match_gate)
         frames.append(frame)
         scored = report.evaluate(result, robot_inputs, config, match_gate, align, frame)
@@ -165,8 +167,8 @@ def run_fleet(inputs: FleetInputs, config: SlamConfig, settings, initial: list, 
             metrics.update({k: scored[k] for k in ("n_landmarks", "n_confirmed_landmarks", "landmarks")
                             if k in scored})
         per_robot[name] = {"initial_pose": initial[r].to_dict(), "n_observation_messages": track.n_obs_msgs,
-                           **{k: scored[k] for k in ("trajectory", "frame", "drops", "runner_skipped",
-                                                     "input_failures") if k in scored},
+                           **{k: scored[k] for k in ("trajectory", "trajectory_revised", "frame", "drops",
+                                                     "runner_skipped", "input_failures") if k in scored},
                            "noise_learned": fleet.robot(r).learned_noise()}
         robot_dir = output / name
         robot_dir.mkdir(exist_ok=True)
@@ -175,6 +177,7 @@ def run_fleet(inputs: FleetInputs, config: SlamConfig, settings, initial: list, 
                                   param_values or {}, per_robot[name]["noise_learned"])
         write_run_tum(robot_dir, result.trajectory, (config.sensor.offset_x, config.sensor.offset_y),
                       robot_inputs.gps_times, robot_inputs.gps_xy)
+        write_revised_tum(robot_dir, result.revised)
     durations = [d for track in tracks for d in track.durations]
     span = [t for track in tracks for t in (track.first, track.last) if t is not None]
     metrics["timing"] = timing_metrics(durations, (max(span) - min(span)) if span else 0.0, busy).to_dict()
@@ -206,8 +209,9 @@ def fleet_summary(metrics: dict) -> str:
                      f"spurious, RMSE {report._fmt(lm['rmse'])} m (shape {report._fmt(lm.get('shape_error'))});")
     parts.append(f"{metrics['n_landmarks']} landmarks ({metrics['n_confirmed_landmarks']} confirmed);")
     for name, robot in metrics["robots"].items():
-        tr = robot.get("trajectory")
-        parts.append(f"{name} trajectory RMSE {report._fmt(tr['rmse']) if tr else 'n/a'} m;")
+        tr, revised = robot.get("trajectory"), robot.get("trajectory_revised")
+        again = f" ({report._fmt(revised['rmse'])} m as the replays filtered it again)" if revised else ""
+        parts.append(f"{name} trajectory RMSE {report._fmt(tr['rmse']) if tr else 'n/a'} m{again};")
     tm = metrics["timing"]
     parts.append(f"{report._fmt(tm['mean_step_ms'], 2)} ms/step, real-time factor "
                  f"{report._fmt(tm['real_time_factor'], 1)} (wall {report._fmt(tm['wall_time_s'], 1)} s)")

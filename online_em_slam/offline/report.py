@@ -39,23 +39,33 @@ def evaluate(result, inputs, config: SlamConfig, match_gate: float = DEFAULT_MAT
     }
     if result.failures:
         metrics["input_failures"] = list(result.failures)
-    positions, traj = np.asarray(lm.positions).reshape(-1, 2), result.trajectory
+    positions = np.asarray(lm.positions).reshape(-1, 2)
     if frame is not None and (inputs.landmarks is not None or inputs.has_gps):
         metrics["frame"] = frame.to_dict()
     if frame is not None and frame.moved:
         positions = points_to_truth(frame, positions)
-        traj = np.column_stack([traj[:, 0], poses_to_truth(frame, traj[:, 1:4])]) if len(traj) else traj
     if inputs.landmarks is not None:
         lmm = scored_landmarks(positions[confirmed], np.asarray(lm.ids)[confirmed], inputs,
                                match_gate, by_id=result.known_ids)
         metrics["landmarks"] = lmm.to_dict()
         metrics["landmarks"]["evaluated"] = "confirmed (n_obs >= association.confirm_observations)"
-    if inputs.has_gps and len(traj):
-        points = sensor_points(traj[:, 1:4], (config.sensor.offset_x, config.sensor.offset_y))
-        tm = trajectory_metrics(traj[:, 0], points, inputs.gps_times, inputs.gps_xy, align=align)
-        metrics["trajectory"] = tm.to_dict()
-        metrics["trajectory"]["compared_point"] = "sensor point (pose + R(yaw) sensor offset) vs GPS"
+    if inputs.has_gps:
+        for name, poses in (("trajectory", result.trajectory), ("trajectory_revised", result.revised)):
+            if poses is not None and len(poses):
+                metrics[name] = _trajectory_scores(poses, frame, inputs, config, align)
+        if "trajectory_revised" in metrics:
+            metrics["trajectory_revised"]["poses"] = "the last replay's, then as published"
     return metrics
+
+
+def _trajectory_scores(traj: np.ndarray, frame: FrameCheck | None, inputs, config: SlamConfig, align: bool) -> dict:
+    """trajectory_metrics of poses (n, 4) t, x, y, yaw, moved into the ground-truth frame as the map was."""
+    if frame is not None and frame.moved:
+        traj = np.column_stack([traj[:, 0], poses_to_truth(frame, traj[:, 1:4])])
+    points = sensor_points(traj[:, 1:4], (config.sensor.offset_x, config.sensor.offset_y))
+    scores = trajectory_metrics(traj[:, 0], points, inputs.gps_times, inputs.gps_xy, align=align).to_dict()
+    scores["compared_point"] = "sensor point (pose + R(yaw) sensor offset) vs GPS"
+    return scores
 
 
 def scored_landmarks(positions, ids, inputs, match_gate: float, by_id: bool):
@@ -137,7 +147,10 @@ def summary_line(metrics: dict) -> str:
                      f"frame {_fmt(lm.get('frame_error'))}){_scale(lm)};")
     tr = metrics.get("trajectory")
     if tr:
-        parts.append(f"trajectory RMSE {_fmt(tr['rmse'])} m (median {_fmt(tr['median'])}, max {_fmt(tr['max'])});")
+        revised = metrics.get("trajectory_revised")
+        again = f", {_fmt(revised['rmse'])} m as the replays filtered it again" if revised else ""
+        parts.append(f"trajectory RMSE {_fmt(tr['rmse'])} m (median {_fmt(tr['median'])}, max {_fmt(tr['max'])}"
+                     f"{again});")
     frame = metrics.get("frame")
     if frame and frame.get("same_frame") is False:
         parts.append(f"scored in the ground-truth frame after moving the estimate by its start pose "

@@ -30,7 +30,7 @@ from .frames import check_frame, points_to_truth, poses_to_truth
 from ..pipeline import CONTROL, KIND_NAME, OBSERVATIONS, ODOMETRY, InputPipeline
 from ..bag.progress import Progress
 from ..messages.quaternion import odometry_yaw
-from .tum import write_run_tum
+from .tum import write_revised_tum, write_run_tum
 
 # Inputs that raised inside the estimator are dropped and counted (``internal_error``); the
 # first few messages go into metrics.json's ``input_failures`` and the run's warning.
@@ -350,6 +350,15 @@ class RunResult:
     n_observation_messages: int
     known_ids: bool = False               # some observation carried a landmark id (known association)
     failures: list = field(default_factory=list)   # the first inputs that raised inside the estimator
+    revised: np.ndarray | None = None     # (n, 4): the trajectory as the last replay filtered it again
+
+
+def revised_trajectory(replayed: np.ndarray | None, published: np.ndarray) -> np.ndarray | None:
+    """(n, 4) t, x, y, yaw: the poses of the last replay (OnlineEMSlam.revised_trajectory), then
+    ``published`` after its take-over; None without a replay."""
+    if replayed is None or not len(replayed):
+        return None
+    return np.vstack([replayed, published[published[:, 0] > replayed[-1, 0]]])
 
 
 def feed(estimator, inputs: BagInputs) -> RunResult:
@@ -394,9 +403,11 @@ def feed(estimator, inputs: BagInputs) -> RunResult:
     inputs.refused = refused
     skipped = {k: int(v) for k, v in pipeline.drops.items() if v}
     skipped.update({k: int(v) for k, v in refused.items() if v})
-    return RunResult("", np.asarray(rows, dtype=float).reshape(-1, 4), estimator.landmarks(), durations, busy,
+    trajectory = np.asarray(rows, dtype=float).reshape(-1, 4)
+    return RunResult("", trajectory, estimator.landmarks(), durations, busy,
                      (last - first) if first is not None else 0.0, dict(estimator.drops), skipped, n_obs_msgs,
-                     known_ids, failures)
+                     known_ids, failures,
+                     revised_trajectory(getattr(estimator, "revised_trajectory", lambda: None)(), trajectory))
 
 
 def run_one(inputs: BagInputs, config: SlamConfig, method: str, initial: InitialPose, output: Path,
@@ -421,6 +432,7 @@ def run_one(inputs: BagInputs, config: SlamConfig, method: str, initial: Initial
     offset = (config.sensor.offset_x, config.sensor.offset_y)
     report.write_trajectory(output / "trajectory.csv", result.trajectory)
     write_run_tum(output, result.trajectory, offset, inputs.gps_times, inputs.gps_xy)   # TUM files for evo
+    write_revised_tum(output, result.revised)
     report.write_landmarks(output / "landmarks.csv", result.landmarks)
     if hasattr(estimator, "learned_noise"):                  # online EM: the noise it ended with
         metrics["noise_learned"] = estimator.learned_noise()

@@ -50,3 +50,10 @@ def write_run_tum(output, trajectory, sensor_offset, gps_times=None, gps_xy=None
         written.append(output / "ground_truth.tum")
         write_tum(written[2], gps_times, gps_xy)
     return written
+
+
+def write_revised_tum(output, revised) -> None:
+    """trajectory_revised.tum: the trajectory as the replays filtered it again (runner.revised_trajectory),
+    when there is one."""
+    if revised is not None:
+        write_tum(Path(output) / "trajectory_revised.tum", revised[:, 0], revised[:, 1:4])

@@ -65,6 +65,9 @@ class RobotView:
     def landmarks(self, confirmed_only: bool = False):
         return self.fleet.landmarks(confirmed_only)
 
+    def revised_trajectory(self):
+        return self.fleet.revised_trajectory(self.robot)
+
     def __getattr__(self, name: str):
         if name.startswith("__") or name in ("fleet", "robot", "shared"):
             raise AttributeError(name)

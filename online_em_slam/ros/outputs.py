@@ -49,6 +49,7 @@ class Outputs:
         self.last_pose_stamp = -math.inf
         self.last_tf_ns = -1
         self.path = PathHistory(s.path_max_length, s.path_publish_max_poses)
+        self.revised = None             # the estimator's revised trajectory the path holds
         self.map_dirty = True
         self.pose_pub = self.path_pub = self.particles_pub = self.landmarks_pub = self.markers_pub = None
         self.transform = None
@@ -70,6 +71,7 @@ class Outputs:
         self.last_pose_stamp = -math.inf
         self.last_tf_ns = -1
         self.path.clear()
+        self.revised = None
         self.map_dirty = True
 
     # ------------------------------------------------------------------ from the input pipeline
@@ -94,6 +96,7 @@ class Outputs:
         report = fed.report
         if report is None:
             return
+        self._revise_path()
         dropped, _ = split_decisions(report.dropped)          # decisions are no fault: not warned about
         if dropped:
             self.node.throttle.warning("estimator_drops", "observations dropped by the estimator: "
@@ -101,6 +104,14 @@ class Outputs:
         self.diagnostics.updated(report)
         self.map_dirty = True
         self.publish_particles()
+
+    def _revise_path(self) -> None:
+        """A replay that took over filtered the past again: its poses replace the path's up to then."""
+        revised = getattr(self.node.slam, "revised_trajectory", lambda: None)()
+        if revised is not None and revised is not self.revised:
+            self.revised = revised
+            self.path.revise(revised)
+            self.map_dirty = True
 
     def settled(self, used: bool, observed: bool) -> None:
         """After a batch of applied inputs: publish once.

@@ -62,6 +62,20 @@ class PathHistory:
         self._next_seq += 1
         return True
 
+    def revise(self, rows) -> None:
+        """The poses up to the last of ``rows`` (n, 4) replaced by them: a replay filtered the past
+        again (core/filter/warmup.py); the poses after it stay.  The sequence numbers start again."""
+        rows = np.asarray(rows, dtype=float).reshape(-1, 4)
+        rows = rows[np.isfinite(rows).all(axis=1)]
+        if self.maxlen == 0 or not len(rows):
+            return
+        kept = self._ordered()
+        merged = np.vstack([rows, kept[kept[:, 0] > rows[-1, 0]]])
+        earlier = np.maximum.accumulate(np.concatenate([[-np.inf], merged[:-1, 0]]))
+        merged = merged[merged[:, 0] > earlier][-self.maxlen:]       # stamps rising, as append keeps them
+        self.clear()
+        self._rows, self._size, self._next_seq = merged.copy(), len(merged), len(merged)
+
     def _ordered(self) -> np.ndarray:
         index = (self._start + np.arange(self._size)) % max(len(self._rows), 1)
         return self._rows[index]

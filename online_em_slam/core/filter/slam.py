@@ -100,15 +100,9 @@ class OnlineEMSlam:
                                     cfg.noise_learning.replay_on_calibration, cfg.noise_learning.replay_growth)
 
     def start_new_pass(self, initial_pose=None, stamp: float | None = None) -> None:
-        """Prepare another pass over the same data: batch EM by repeated passes.
-
-        The map estimate theta (and the landmark ids and observation counts)
-        is kept as the starting point; the statistics, step-size counts and the
-        filter restart, so the next pass computes an E-step under the current
-        map and its M-steps replace the previous pass's statistics.  This is
-        for offline diagnostics (how far EM is from its fixed point); the
-        online use is a single pass.
-        """
+        """Another pass over the same data (batch EM by repeated passes; offline, how far EM is from
+        its fixed point): the map theta, its ids and counts stay as the starting point, the statistics,
+        step-size counts and filter restart, so the pass's M-steps replace the last pass's statistics."""
         # The complete-data statistics stay until each landmark's first update of the
         # new pass replaces them (step size 1): they give the map uncertainty meanwhile.
         saved = self._m_step_arrays()
@@ -431,6 +425,10 @@ class OnlineEMSlam:
         """Noise values learned online (em/noise/learner.py): estimates, counts, and whether in use."""
         return {**self._noise.learned(), "warmup_replayed": self._warmup.replayed, "replays": self._warmup.replays,
                 "calibration_replayed": self._warmup.calibrated, "warmup_replay_needless": self._warmup.needless}
+
+    def revised_trajectory(self) -> np.ndarray | None:
+        """(n, 4) stamp, x, y, yaw after each scan the last replay filtered (warmup.py); None: no replay."""
+        return self._warmup.trajectories.get(0)
 
     def learned_noise_parameters(self) -> dict:
         """The noise in use as flat node parameters (noise.*, motion.* stds), for a parameter file."""

@@ -25,11 +25,18 @@ of a minute), so it sets ``replay_in_slices`` on the estimator and feeds the rep
 a few inputs at a time between its inputs (``advance``); the estimator it publishes
 meanwhile goes on under the first pass.  Either way the replayed estimator sees the
 same inputs in the same order, so it is the same once it takes over.
+
+A replay filters the past again, so its poses are the estimate of the past trajectory
+from then on: the poses it had after each scan it used (``trajectories``, per robot, of the
+last replay taken over), which a node republishes as its path and the offline runner
+scores beside the trajectory as it was published.
 """
 from __future__ import annotations
 
 import copy
 from collections import Counter
+
+import numpy as np
 
 
 def learned_start(learner) -> tuple:
@@ -69,6 +76,8 @@ class WarmupReplay:
         self.growth = growth            # replay again once the kept inputs grew by this factor (> 1)
         self.replays = 0                # replays taken over so far, of every kind (learned_noise reports it)
         self.needless = False           # every value came into use where the warm-up began: no replay
+        self.trajectories: dict[int, np.ndarray] = {}     # per robot, (n, 4) of the last replay taken over
+        self._poses: dict[int, list] = {}              # per robot, the replay under way's poses
 
     def record(self, method: str, stamp: float, value) -> None:
         """One input as the estimator received it (its method name, stamp and value)."""
@@ -125,7 +134,7 @@ class WarmupReplay:
         except Exception:  # noqa: BLE001 - as a failure while feeding (advance): counted, the first pass goes on
             self._failed(estimator)
             return
-        self._fed, self._warmup_length = 0, len(self.inputs)
+        self._fed, self._warmup_length, self._poses = 0, len(self.inputs), {}
         if not in_slices:
             self.advance(estimator)
 
@@ -140,6 +149,10 @@ class WarmupReplay:
             for method, stamp, value in self.inputs[self._fed:end]:
                 self._feed(replaying, method, stamp, value)
                 self._fed += 1
+                if method == "add_observations":
+                    robot, estimate = self._pose_after(replaying, value)
+                    self._poses.setdefault(robot, []).append(
+                        (stamp if estimate.stamp is None else estimate.stamp, *estimate.mean[:3]))
                 if self._fed == self._warmup_length:
                     # The warm-up's values were learned from these inputs; later ones teach again.
                     for learner in self._learners(replaying):
@@ -151,6 +164,10 @@ class WarmupReplay:
             return True
         self._take_over(estimator, replaying)
         return False
+
+    def _keep_poses(self) -> None:
+        """The poses of the replay taking over become the past trajectory's estimate."""
+        self.trajectories = {robot: np.asarray(rows, dtype=float) for robot, rows in self._poses.items()}
 
     def _failed(self, estimator) -> None:
         """A replay that raised, starting or feeding: no replay any more, counted.  Not re-raised: a
@@ -186,6 +203,11 @@ class WarmupReplay:
     def _feed(estimator, method: str, stamp: float, value) -> None:
         getattr(estimator, method)(stamp, value)
 
+    @staticmethod
+    def _pose_after(estimator, value) -> tuple:
+        """(robot, its PoseEstimate) after the observations ``value`` were fed."""
+        return 0, estimator.pose()
+
     def _take_over(self, estimator, replayed) -> None:
         """``replayed`` becomes ``estimator`` (the same object: whoever holds it goes on with it);
         the drop counts stay the estimator's, which counted every input once."""
@@ -194,6 +216,7 @@ class WarmupReplay:
         estimator.__dict__.update(replayed.__dict__)
         estimator.drops = estimator._input.drops = drops   # the motion input counts into it too
         self.replays += 1
+        self._keep_poses()
         if self._calibrating:           # the warm-up replay is still to come: the kept inputs go on
             self.replaying, self._calibrating, self.calibrated = None, False, True
             estimator._warmup = self
@@ -203,4 +226,4 @@ class WarmupReplay:
             estimator._warmup = self
             return
         estimator._warmup.replayed, estimator._warmup.calibrated = True, self.calibrated
-        estimator._warmup.replays = self.replays
+        estimator._warmup.replays, estimator._warmup.trajectories = self.replays, self.trajectories

@@ -174,6 +174,10 @@ class FleetSlam:
     def pose(self, robot: int) -> PoseEstimate:
         return self.robot(robot).pose()
 
+    def revised_trajectory(self, robot: int) -> np.ndarray | None:
+        """OnlineEMSlam.revised_trajectory of ``robot``, from the fleet's last replay."""
+        return self._warmup.trajectories.get(robot)
+
     def particles(self, robot: int) -> tuple[np.ndarray, np.ndarray]:
         return self.robot(robot).particles()
 

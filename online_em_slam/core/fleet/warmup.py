@@ -67,11 +67,16 @@ class FleetWarmupReplay(WarmupReplay):
         robot, value = value
         getattr(fleet, method)(robot, stamp, value)
 
+    @staticmethod
+    def _pose_after(fleet, value) -> tuple:
+        return value[0], fleet.pose(value[0])
+
     def _take_over(self, fleet, replayed) -> None:
         drops = [robot.drops for robot in fleet._robots]
         fleet.__dict__.clear()
         fleet.__dict__.update(replayed.__dict__)
         self.replays += 1
+        self._keep_poses()
         for robot, counts in zip(fleet._robots, drops):
             robot.drops = robot._input.drops = counts       # the motion input counts into it too
             robot._warmup.replayed, robot._warmup.replays = True, self.replays   # reported per robot (learned_noise)
@@ -82,3 +87,4 @@ class FleetWarmupReplay(WarmupReplay):
                 robot.fleet_warmup = self
             return
         fleet._warmup.replayed, fleet._warmup.replays = True, self.replays
+        fleet._warmup.trajectories = self.trajectories

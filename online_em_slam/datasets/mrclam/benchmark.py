@@ -272,6 +272,7 @@ def record(item: Item, status: str, metrics: dict, error: str = "") -> dict:
            "landmark_shape_scaled": lm.get("scaled_shape_error"), "matched": lm.get("n_matched"),
            "matched_fitted": lm.get("n_matched_fitted"), "n_true": lm.get("n_true"),
            "spurious": lm.get("n_spurious"), "trajectory_rmse": tr.get("rmse"),
+           "trajectory_revised_rmse": (metrics.get("trajectory_revised") or tr).get("rmse"),
            "mean_step_ms": tm.get("mean_step_ms"), "estimator_wall_s": tm.get("wall_time_s"),
            "item_wall_s": (metrics.get("benchmark") or {}).get("item_wall_s"),
            "internal_errors": (metrics.get("runner_skipped") or {}).get("internal_error", 0)}
