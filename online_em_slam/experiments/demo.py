@@ -352,7 +352,8 @@ def _node_metrics(recording: Recording, setup: Setup, rate: float, traj: np.ndar
                         "pose_messages_received": len(recording.poses),
                         "observation_updates": int(diag.get("observation_updates", 0))},
            "node_drops": drops, "input_losses": losses, "replay_wall_s": recording.replay_wall,
-           "trajectory_source": "~/path (one pose per processed input)" if recording.path is not None else "~/pose"}
+           "trajectory_source": ("~/path (one pose per processed input, the replays' poses up to their take-over)"
+                                 if recording.path is not None else "~/pose")}
     if inputs.landmarks is not None:
         dds["landmarks"] = landmark_metrics(node_map.positions[confirmed], inputs.landmarks,
                                             estimated_ids=node_map.ids[confirmed]).to_dict()
@@ -395,7 +396,9 @@ def _print_comparison(dds: dict, offline: dict, node_map, out: Path, replay_wall
         return "n/a" if v is None else (f"{v:.{digits}f}" if isinstance(v, float) else str(v))
 
     def tr(m, key):
-        v = (m.get("trajectory") or {}).get(key)
+        # The node's ~/path holds the poses of the last replay up to its take-over: the offline run's
+        # trajectory_revised, which the published trajectory is where no replay came.
+        v = (m.get("trajectory_revised") or m.get("trajectory") or {}).get(key)
         return "n/a" if v is None else f"{v:.3f}"
 
     print("\nCar Park, online EM SLAM: node over DDS vs offline runner (same bag, params, seed, initial pose)")
