@@ -168,6 +168,7 @@ class WarmupReplay:
     def _keep_poses(self) -> None:
         """The poses of the replay taking over become the past trajectory's estimate."""
         self.trajectories = {robot: np.asarray(rows, dtype=float) for robot, rows in self._poses.items()}
+        self._poses = {}
 
     def _failed(self, estimator) -> None:
         """A replay that raised, starting or feeding: no replay any more, counted.  Not re-raised: a
